@@ -1,0 +1,1 @@
+"""fake-marlin: a virtual Marlin printer on a pseudo-terminal."""

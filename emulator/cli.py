@@ -1,0 +1,121 @@
+"""`fake-marlin`: run a virtual printer on a pseudo-terminal."""
+
+import argparse
+import os
+import signal
+import sys
+
+import trio
+
+from emulator.clock import ScaledClock
+from emulator.journal import Journal
+from emulator.link.pty import PtyLink
+from emulator.printer.model import Printer, PrinterConfig
+from emulator.server import PrinterServer, ServerConfig
+
+PROTOCOLS = ("ultimaker",)
+
+
+def _positive_float(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+    if not value > 0 or value == float("inf"):
+        raise argparse.ArgumentTypeError(f"must be a positive number, got {text!r}")
+    return value
+
+
+def _non_negative_float(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+    if not 0 <= value < float("inf"):
+        raise argparse.ArgumentTypeError(f"must be zero or more, got {text!r}")
+    return value
+
+
+def _extruder_count(text: str) -> int:
+    if not text.isdigit() or not 1 <= int(text) <= 8:
+        raise argparse.ArgumentTypeError(f"must be a whole number from 1 to 8, got {text!r}")
+    return int(text)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="fake-marlin",
+        description="Start a virtual Marlin printer on a pseudo-terminal and print its /dev/pts path.",
+    )
+    parser.add_argument("--protocol", choices=PROTOCOLS, default="ultimaker", help="wire protocol")
+    parser.add_argument("--link", metavar="PATH", help="also make PATH a symlink to the pty")
+    parser.add_argument("--journal", metavar="FILE", help="append each executed command to FILE")
+    parser.add_argument(
+        "--speed", type=_positive_float, default=1.0, metavar="X",
+        help="run simulated printer time X times faster than real time (default 1)",
+    )
+    parser.add_argument("--extruders", type=_extruder_count, default=1, metavar="N")
+    parser.add_argument(
+        "--boot-delay", type=_non_negative_float, default=0.0, metavar="SECONDS",
+        help="simulated time a reset takes before the printer answers (default 0)",
+    )
+    return parser
+
+
+class _Symlink:
+    def __init__(self, path: str | None, target: str) -> None:
+        self.path = path
+        self.target = target
+
+    def create(self) -> None:
+        if self.path is None:
+            return
+        if os.path.lexists(self.path):
+            if not os.path.islink(self.path):
+                raise OSError(f"{self.path} exists and is not a symlink; refusing to replace it")
+            os.unlink(self.path)
+        os.symlink(self.target, self.path)
+
+    def remove(self) -> None:
+        if self.path and os.path.islink(self.path) and os.readlink(self.path) == self.target:
+            os.unlink(self.path)
+
+
+async def _serve_until_signalled(server: PrinterServer) -> None:
+    with trio.open_signal_receiver(signal.SIGINT, signal.SIGTERM, signal.SIGHUP) as signals:
+        async with trio.open_nursery() as nursery:
+            nursery.start_soon(server.run)
+            async for _ in signals:
+                nursery.cancel_scope.cancel()
+                break
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        journal = Journal.open(args.journal)
+    except OSError as error:
+        print(f"fake-marlin: cannot open journal {args.journal}: {error.strerror}", file=sys.stderr)
+        return 2
+    link = PtyLink()
+    symlink = _Symlink(args.link, link.path)
+    try:
+        symlink.create()
+    except OSError as error:
+        print(f"fake-marlin: cannot create link {args.link}: {error.strerror or error}", file=sys.stderr)
+        link.close()
+        return 2
+    print(link.path, flush=True)
+    printer = Printer(PrinterConfig(extruders=args.extruders))
+    server = PrinterServer(link, printer, journal, ServerConfig(args.protocol, args.boot_delay))
+    try:
+        trio.run(_serve_until_signalled, server, clock=ScaledClock(args.speed))
+    finally:
+        symlink.remove()
+        journal.close()
+        link.close()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

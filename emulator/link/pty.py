@@ -1,0 +1,98 @@
+"""A pseudo-terminal standing in for the printer's USB serial port.
+
+The slave side is what hosts open. We keep our own slave fd open so that a host closing the port
+does not make reads on the master fail, and we run the master in packet mode (TIOCPKT): a host's
+open() flushes its input, which reaches us as a FLUSHREAD notice. That notice is the pty's
+stand-in for the DTR reset a real board performs when a host opens the port.
+"""
+
+import errno
+import fcntl
+import os
+import struct
+import sys
+import termios
+import tty
+from dataclasses import dataclass
+
+import trio
+
+_TIOCPKT_DATA = 0
+_TIOCPKT_FLUSHREAD = 1
+# What the printer may keep unsent while nobody reads the port; past it the oldest bytes go,
+# as they would on a wire nobody listens to.
+_MAX_PENDING_OUTPUT = 1 << 20
+
+
+@dataclass(frozen=True)
+class HostOpened:
+    """A host (re)opened the port."""
+
+
+class PtyLink:
+    def __init__(self) -> None:
+        self._master, self._slave = os.openpty()
+        tty.setraw(self._slave)
+        fcntl.ioctl(self._master, termios.TIOCPKT, struct.pack("i", 1))
+        os.set_blocking(self._master, False)
+        self.path = os.ttyname(self._slave)
+        self._pending = bytearray()
+        self._output_ready = trio.Event()
+        self.dropped_bytes = 0
+
+    async def receive(self) -> bytes | HostOpened:
+        """The next chunk of bytes from the host, or a HostOpened notice."""
+        while True:
+            await trio.lowlevel.wait_readable(self._master)
+            try:
+                packet = os.read(self._master, 4096)
+            except BlockingIOError:
+                continue
+            if not packet:
+                continue
+            if packet[0] == _TIOCPKT_DATA:
+                if len(packet) > 1:
+                    return packet[1:]
+            elif packet[0] & _TIOCPKT_FLUSHREAD:
+                return HostOpened()
+
+    def send(self, data: bytes) -> None:
+        """Queue bytes for the host; never blocks the printer."""
+        if not data:
+            return
+        self._pending += data
+        overflow = len(self._pending) - _MAX_PENDING_OUTPUT
+        if overflow > 0:
+            del self._pending[:overflow]
+            self.dropped_bytes += overflow
+        self._output_ready.set()
+
+    def discard_output(self) -> None:
+        """Forget unsent output: the host that would have read it is gone."""
+        self._pending.clear()
+
+    async def run_writer(self) -> None:
+        while True:
+            if not self._pending:
+                self._output_ready = trio.Event()
+                await self._output_ready.wait()
+                continue
+            await trio.lowlevel.wait_writable(self._master)
+            try:
+                written = os.write(self._master, self._pending)
+            except BlockingIOError:
+                continue
+            except OSError as error:
+                if error.errno != errno.EIO:
+                    raise
+                print(f"fake-marlin: write to pty failed: {error}", file=sys.stderr)
+                self._pending.clear()
+                continue
+            del self._pending[:written]
+
+    def close(self) -> None:
+        for fd in (self._master, self._slave):
+            try:
+                os.close(fd)
+            except OSError:
+                pass

@@ -1,0 +1,1 @@
+"""The printer model: G-code dispatch, planner, thermal model. Knows no wire format."""

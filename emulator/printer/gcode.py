@@ -1,0 +1,49 @@
+"""Parsing one line of G-code the way Marlin's GCodeParser reads it."""
+
+import re
+from dataclasses import dataclass, field
+
+from wire.gcode import strip_comment
+
+_WORD = re.compile(r"([A-Za-z])\s*([-+]?(?:\d+\.?\d*|\.\d+))?")
+
+
+@dataclass(frozen=True)
+class Command:
+    text: str  # the normalised command as executed (comment stripped)
+    code: str  # "G1", "M105", "T0"; "" for a line without a command word
+    params: dict[str, float | None] = field(default_factory=dict)
+
+    def has(self, letter: str) -> bool:
+        return letter in self.params
+
+    def value(self, letter: str, default: float | None = None) -> float | None:
+        value = self.params.get(letter)
+        return default if value is None else value
+
+    @property
+    def string_argument(self) -> str:
+        """The free text after the command word (M117, M118, M23 file names)."""
+        return self.text[len(self.code):].strip() if self.code else ""
+
+
+def parse(line: str) -> Command:
+    text = strip_comment(line)
+    words = _WORD.findall(text)
+    if not words or words[0][0].upper() not in "GMT" or (words[0][0].upper() != "T" and not words[0][1]):
+        return Command(text, "", {})
+    letter, number = words[0]
+    code = letter.upper() + _integer_text(number)
+    params: dict[str, float | None] = {}
+    for param_letter, param_number in words[1:]:
+        params[param_letter.upper()] = float(param_number) if param_number else None
+    return Command(text, code, params)
+
+
+def _integer_text(number: str) -> str:
+    if not number:
+        return ""
+    try:
+        return str(int(float(number)))
+    except ValueError:
+        return number

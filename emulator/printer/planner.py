@@ -1,0 +1,80 @@
+"""A 16-block motion planner in simulated time.
+
+Blocks run back to back; each takes the time of a trapezoidal speed profile. The planner never
+reads a clock: every question is asked at a time `now` that the caller supplies.
+"""
+
+import math
+from collections import deque
+from dataclasses import dataclass
+
+BLOCK_BUFFER_SIZE = 16
+MAX_MOVES = BLOCK_BUFFER_SIZE - 1  # a ring buffer keeps one slot free
+
+
+@dataclass(frozen=True)
+class Block:
+    start: float
+    end: float
+    origin: tuple[float, ...]
+    target: tuple[float, ...]
+
+
+def move_time(distance: float, speed: float, acceleration: float, junction_speed: float) -> float:
+    """Seconds for `distance` mm at up to `speed` mm/s, entering and leaving at junction_speed."""
+    if distance <= 0 or speed <= 0:
+        return 0.0
+    entry = min(junction_speed, speed)
+    ramp = (speed * speed - entry * entry) / (2 * acceleration)
+    if 2 * ramp <= distance:
+        return 2 * (speed - entry) / acceleration + (distance - 2 * ramp) / speed
+    peak = math.sqrt(entry * entry + acceleration * distance)
+    return 2 * (peak - entry) / acceleration
+
+
+class Planner:
+    def __init__(self) -> None:
+        self._blocks: deque[Block] = deque()
+
+    def _retire(self, now: float) -> None:
+        while self._blocks and self._blocks[0].end <= now:
+            self._blocks.popleft()
+
+    def moves(self, now: float) -> int:
+        self._retire(now)
+        return len(self._blocks)
+
+    def room(self, now: float) -> int:
+        return MAX_MOVES - self.moves(now)
+
+    def next_change(self, now: float) -> float | None:
+        """When the oldest planned move finishes (and room grows), or None if idle."""
+        self._retire(now)
+        return self._blocks[0].end if self._blocks else None
+
+    def drained_at(self, now: float) -> float:
+        """When every planned move will have finished."""
+        self._retire(now)
+        return max(now, self._blocks[-1].end) if self._blocks else now
+
+    def add(self, now: float, duration: float, origin: tuple[float, ...], target: tuple[float, ...]) -> Block:
+        if self.room(now) <= 0:
+            raise RuntimeError("planner is full")  # the caller must wait for next_change()
+        start = max(now, self._blocks[-1].end) if self._blocks else now
+        block = Block(start, start + duration, origin, target)
+        self._blocks.append(block)
+        return block
+
+    def stepper_position(self, now: float, planned: tuple[float, ...]) -> tuple[float, ...]:
+        """Where the steppers are now: along the move in progress, or `planned` when idle."""
+        self._retire(now)
+        if not self._blocks:
+            return planned
+        block = self._blocks[0]
+        if now <= block.start:
+            return block.origin
+        fraction = (now - block.start) / (block.end - block.start)
+        return tuple(a + (b - a) * fraction for a, b in zip(block.origin, block.target))
+
+    def clear(self) -> None:
+        self._blocks.clear()

@@ -1,0 +1,1 @@
+"""Printer-side wire protocols: one sans-IO state machine per wire format."""

@@ -1,0 +1,221 @@
+"""The printer side of Ultimaker's serial protocol, as a sans-IO state machine.
+
+Bytes from the host go in through receive_data(); next_event() yields the commands they carry.
+What the printer says goes out through send(event) (frames, response data, out-of-band lines)
+and data_to_send() (the automatic ProtoError + `r` answers to bad packets).
+Mirrors UltimakerMarlin's SerialProtocol::readCommand byte for byte.
+"""
+
+from dataclasses import dataclass
+from enum import Enum, auto
+
+from wire import ultimaker as wire
+
+
+class ReceiverState(Enum):
+    WAIT_FOR_HEADER_BYTE = auto()
+    WAIT_FOR_SECOND_HEADER_BYTE = auto()
+    WAIT_FOR_SEQUENCE_NUMBER = auto()
+    WAIT_FOR_PAYLOAD_SIZE = auto()
+    WAIT_FOR_PAYLOAD = auto()
+    WAIT_FOR_CRC_HIGH = auto()
+    WAIT_FOR_CRC_LOW = auto()
+
+
+class RejectReason(Enum):
+    UNEXPECTED_SEQUENCE = auto()
+    BAD_LENGTH = auto()
+    ILLEGAL_BYTE = auto()
+    CHECKSUM_MISMATCH = auto()
+    QUEUE_FULL = auto()
+
+
+# Events out of the protocol.
+@dataclass(frozen=True)
+class CommandReceived:
+    seq: int
+    text: str
+
+
+@dataclass(frozen=True)
+class PacketRejected:
+    reason: RejectReason
+    message: str
+    expected: int
+
+
+# Events into the protocol.
+@dataclass(frozen=True)
+class CommandDone:
+    """The command of packet `seq` has been handled; `response` is its response data."""
+
+    seq: int
+    room: int
+    response: tuple[str, ...] = ()
+
+
+@dataclass(frozen=True)
+class RoomChanged:
+    """The planner's free room is now `room`; sends a `q` frame if the host last saw 0."""
+
+    room: int
+
+
+class OutOfBandKind(Enum):
+    LOG = "LOG:"
+    ERROR = "\nError:"
+    WARNING = "WARNING:"
+
+
+@dataclass(frozen=True)
+class OutOfBand:
+    kind: OutOfBandKind
+    text: str
+
+
+@dataclass(frozen=True)
+class ResponseData:
+    """Unsolicited response data (e.g. a temperature report while waiting to heat)."""
+
+    text: str
+
+
+class UltimakerProtocol:
+    def __init__(self, queue_size: int = 8) -> None:
+        self.queue_size = queue_size
+        self.expected_seq = 0
+        self.state = ReceiverState.WAIT_FOR_HEADER_BYTE
+        self.room = wire.PLANNER_ROOM_MAX
+        # The firmware starts with 0 "reported", which is what makes it send q at boot.
+        self.reported_room = 0
+        self._queued = 0
+        self._input = bytearray()
+        self._output = bytearray()
+        self._seq = 0
+        self._length = 0
+        self._payload = bytearray()
+        self._crc = 0
+
+    # -- receiving ---------------------------------------------------------------------
+    def receive_data(self, data: bytes) -> None:
+        self._input += data
+
+    def next_event(self) -> CommandReceived | PacketRejected | None:
+        """The next event the received bytes make, or None when more bytes are needed."""
+        position = 0
+        try:
+            while position < len(self._input):
+                byte = self._input[position]
+                position += 1
+                event = self._step(byte)
+                if event is not None:
+                    if isinstance(event, PacketRejected):
+                        # requestResend(): the firmware flushes whatever is still in its RX buffer.
+                        position = len(self._input)
+                    return event
+            return None
+        finally:
+            del self._input[:position]
+
+    def _step(self, byte: int) -> CommandReceived | PacketRejected | None:
+        state = self.state
+        S = ReceiverState
+        if state is S.WAIT_FOR_HEADER_BYTE:
+            if byte == wire.HEADER_BYTE:
+                self.state = S.WAIT_FOR_SECOND_HEADER_BYTE
+            return None
+        if state is S.WAIT_FOR_SECOND_HEADER_BYTE:
+            self.state = (
+                S.WAIT_FOR_SEQUENCE_NUMBER if byte == wire.HEADER_BYTE else S.WAIT_FOR_HEADER_BYTE
+            )
+            return None
+        if state in (S.WAIT_FOR_SEQUENCE_NUMBER, S.WAIT_FOR_PAYLOAD_SIZE, S.WAIT_FOR_PAYLOAD):
+            if byte == wire.HEADER_BYTE:
+                self.state = S.WAIT_FOR_SECOND_HEADER_BYTE
+                return None
+        if state is S.WAIT_FOR_SEQUENCE_NUMBER:
+            if byte != self.expected_seq:
+                return self._reject(
+                    RejectReason.UNEXPECTED_SEQUENCE,
+                    f"Sequence number is unexpected (received, expected): {byte},{self.expected_seq}",
+                )
+            self._seq = byte
+            self.state = S.WAIT_FOR_PAYLOAD_SIZE
+            return None
+        if state is S.WAIT_FOR_PAYLOAD_SIZE:
+            if byte == 0 or byte > wire.MAX_PAYLOAD:
+                return self._reject(
+                    RejectReason.BAD_LENGTH,
+                    f"Payload size is too big for packet with sequence number: {self.expected_seq}",
+                )
+            self._length = byte
+            self._payload.clear()
+            self.state = S.WAIT_FOR_PAYLOAD
+            return None
+        if state is S.WAIT_FOR_PAYLOAD:
+            if not wire.PAYLOAD_MIN_BYTE <= byte <= wire.PAYLOAD_MAX_BYTE:
+                return self._reject(
+                    RejectReason.ILLEGAL_BYTE,
+                    f"Payload byte not in acceptable (ASCII) range at position #{len(self._payload)}",
+                )
+            self._payload.append(byte)
+            if len(self._payload) == self._length:
+                self.state = S.WAIT_FOR_CRC_HIGH
+            return None
+        if state is S.WAIT_FOR_CRC_HIGH:
+            self._crc = byte << 8
+            self.state = S.WAIT_FOR_CRC_LOW
+            return None
+        # WAIT_FOR_CRC_LOW: the packet is complete.
+        self.state = S.WAIT_FOR_HEADER_BYTE
+        payload = bytes(self._payload)
+        if self._crc | byte != wire.packet_crc(self._seq, payload):
+            return self._reject(
+                RejectReason.CHECKSUM_MISMATCH,
+                f"Checksum mismatch for packet with sequence number: {self.expected_seq}",
+            )
+        if self._queued >= self.queue_size:
+            return self._reject(
+                RejectReason.QUEUE_FULL,
+                "Received packet could not be handled (buffer full), packet with sequence number: "
+                f"{self.expected_seq}",
+            )
+        self._queued += 1
+        self.expected_seq = wire.next_seq(self.expected_seq)
+        return CommandReceived(self._seq, payload.decode("ascii"))
+
+    def _reject(self, reason: RejectReason, message: str) -> PacketRejected:
+        self.state = ReceiverState.WAIT_FOR_HEADER_BYTE
+        self._output += f"\nProtoError:{message}\n".encode("ascii")
+        self._output += self._frame("r", self.expected_seq)
+        return PacketRejected(reason, message, self.expected_seq)
+
+    # -- sending -----------------------------------------------------------------------
+    def send(self, event: CommandDone | RoomChanged | OutOfBand | ResponseData) -> bytes:
+        """Bytes for the host, including any automatic answers still waiting to go out."""
+        if isinstance(event, CommandDone):
+            self._queued = max(0, self._queued - 1)
+            self.room = event.room
+            for line in event.response:
+                self._output += f"{line}\n".encode("ascii", "replace")
+            self._output += self._frame("o", event.seq)
+        elif isinstance(event, RoomChanged):
+            self.room = event.room
+            if self.reported_room == 0 and event.room > 0:
+                self._output += self._frame("q", 0)
+        elif isinstance(event, OutOfBand):
+            self._output += f"{event.kind.value}{event.text}\n".encode("ascii", "replace")
+        elif isinstance(event, ResponseData):
+            self._output += f"{event.text}\n".encode("ascii", "replace")
+        else:
+            raise TypeError(f"cannot send {event!r}")
+        return self.data_to_send()
+
+    def data_to_send(self) -> bytes:
+        data = bytes(self._output)
+        self._output.clear()
+        return data
+
+    def _frame(self, kind: str, seq: int) -> bytes:
+        self.reported_room = self.room
+        return f"\n{wire.frame_body(kind, seq, self.room)}\n".encode("ascii")

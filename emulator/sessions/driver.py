@@ -1,0 +1,30 @@
+"""Runs printer-model commands in trio time."""
+
+from collections.abc import Callable
+
+import trio
+
+from emulator.journal import Journal
+from wire.gcode import strip_comment
+from emulator.printer.model import Printer, Reply, Report, Sleep
+
+
+async def run_command(
+    printer: Printer, line: str, journal: Journal, on_report: Callable[[str], None]
+) -> Reply:
+    """Execute one command to completion, sleeping whenever the model waits for time."""
+    steps = printer.execute(line, trio.current_time())
+    try:
+        step = next(steps)
+        while True:
+            if isinstance(step, Sleep):
+                await trio.sleep_until(step.until)
+            elif isinstance(step, Report):
+                on_report(step.text)
+            step = steps.send(trio.current_time())
+    except StopIteration as finished:
+        reply = finished.value
+    executed = strip_comment(line)
+    if executed:
+        journal.record(executed)
+    return reply

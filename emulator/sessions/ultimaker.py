@@ -1,0 +1,77 @@
+"""One boot of a printer speaking Ultimaker's binary protocol."""
+
+import math
+from collections.abc import Callable
+
+import trio
+
+from emulator.journal import Journal
+from emulator.printer.model import Printer
+from emulator.protocols.ultimaker import (
+    CommandDone,
+    CommandReceived,
+    OutOfBand,
+    OutOfBandKind,
+    ResponseData,
+    RoomChanged,
+    UltimakerProtocol,
+)
+from emulator.sessions.driver import run_command
+
+
+class UltimakerSession:
+    def __init__(
+        self,
+        printer: Printer,
+        journal: Journal,
+        send: Callable[[bytes], None],
+        queue_size: int = 8,
+    ) -> None:
+        self.printer = printer
+        self.journal = journal
+        self._send = send
+        self.protocol = UltimakerProtocol(queue_size)
+        self._queue_in, self._queue_out = trio.open_memory_channel[CommandReceived](math.inf)
+        self._room_may_change = trio.Event()
+
+    def boot(self) -> None:
+        self._send(self.protocol.send(OutOfBand(OutOfBandKind.LOG, "Marlin started")))
+        self._update_room()
+
+    def feed(self, data: bytes) -> None:
+        # The receiver answers bad packets with the planner room as it is now.
+        self._update_room()
+        self.protocol.receive_data(data)
+        while (event := self.protocol.next_event()) is not None:
+            if isinstance(event, CommandReceived):
+                self._queue_in.send_nowait(event)
+        self._send(self.protocol.data_to_send())
+
+    async def run(self) -> None:
+        async with trio.open_nursery() as nursery:
+            nursery.start_soon(self._execute_commands)
+            nursery.start_soon(self._report_room)
+
+    async def _execute_commands(self) -> None:
+        async for received in self._queue_out:
+            reply = await run_command(self.printer, received.text, self.journal, self._respond)
+            room = self.printer.room(trio.current_time())
+            self._send(self.protocol.send(CommandDone(received.seq, room, reply.response_data())))
+            self._room_may_change.set()
+
+    def _respond(self, text: str) -> None:
+        self._send(self.protocol.send(ResponseData(text)))
+
+    def _update_room(self) -> None:
+        self._send(self.protocol.send(RoomChanged(self.printer.room(trio.current_time()))))
+
+    async def _report_room(self) -> None:
+        """Send `q` when room the host last saw as 0 opens up, as the firmware's loop() does."""
+        while True:
+            self._update_room()
+            wake = self._room_may_change = trio.Event()
+            deadline = math.inf
+            if self.protocol.reported_room == 0:
+                deadline = self.printer.next_room_change(trio.current_time()) or math.inf
+            with trio.move_on_at(deadline):
+                await wake.wait()

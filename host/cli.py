@@ -1,0 +1,125 @@
+"""`fake-marlin-host`: stream G-code to a printer on a serial port, or send it one command."""
+
+import argparse
+import json
+import sys
+import time
+
+import trio
+
+from host.client import DEFAULT_BAUDRATE, PROTOCOLS, ClientOptions, load_job, open_printer
+from host.codecs.ultimaker import Line
+from host.errors import HostError, RemoteError
+
+
+def _positive(kind):
+    def parse(text: str):
+        try:
+            value = kind(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+        if not value > 0:
+            raise argparse.ArgumentTypeError(f"must be positive, got {text!r}")
+        return value
+
+    return parse
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="fake-marlin-host", description="Talk to a 3D printer (real or fake-marlin) on a serial port."
+    )
+    common = argparse.ArgumentParser(add_help=False)
+    common.add_argument("--protocol", choices=PROTOCOLS, default="ultimaker")
+    common.add_argument("--baud", type=_positive(int), default=DEFAULT_BAUDRATE)
+    common.add_argument("--window", type=_positive(int), default=3, help="packets in flight (default 3)")
+    common.add_argument(
+        "--timeout", type=_positive(float), default=2.0,
+        help="seconds before an unanswered packet is sent again (default 2)",
+    )
+    common.add_argument(
+        "--retries", type=_positive(int), default=8, help="transmissions of one packet before giving up"
+    )
+    commands = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    print_parser = commands.add_parser("print", parents=[common], help="stream a G-code file")
+    print_parser.add_argument("port", help="serial device, e.g. /dev/ttyACM0 or the emulator's pty")
+    print_parser.add_argument("file", help="G-code file")
+    print_parser.add_argument("--json", action="store_true", help="print a JSON summary instead")
+    send_parser = commands.add_parser("send", parents=[common], help="send one command, print the reply")
+    send_parser.add_argument("port")
+    send_parser.add_argument("gcode", help='the command, e.g. "M105"')
+    return parser
+
+
+class ProgressBar:
+    """One self-rewriting line on stderr when it is a terminal; nothing otherwise."""
+
+    def __init__(self, total: int, stats) -> None:
+        self.total = total
+        self.stats = stats
+        self.done = 0
+        self._shown_at = 0.0
+        self._live = sys.stderr.isatty()
+
+    def update(self, done: int) -> None:
+        self.done = done
+        now = time.monotonic()
+        if self._live and (now - self._shown_at > 0.1 or done == self.total):
+            self._shown_at = now
+            sys.stderr.write("\r" + self.line())
+            sys.stderr.flush()
+
+    def line(self) -> str:
+        width = 30
+        filled = width * self.done // self.total if self.total else width
+        return (
+            f"[{'#' * filled}{'.' * (width - filled)}]  {self.done}/{self.total} commands"
+            f"  resends: {self.stats.resends}"
+        )
+
+    def finish(self, elapsed: float) -> None:
+        end = "\r" if self._live else ""
+        sys.stderr.write(f"{end}{self.line()}  timeouts: {self.stats.timeouts}  {elapsed:.1f} s\n")
+
+
+def _show_line(line: Line) -> None:
+    print(f"printer: {line.kind.value}:{line.text}", file=sys.stderr)
+
+
+def _options(args) -> ClientOptions:
+    return ClientOptions(window=args.window, timeout=args.timeout, max_transmissions=args.retries)
+
+
+async def _print(args) -> int:
+    job = load_job(args.file)
+    async with open_printer(args.port, args.protocol, args.baud, _options(args), _show_line) as printer:
+        bar = ProgressBar(len(job), printer.stats)
+        summary = await printer.print_commands([c.text for c in job], bar.update)
+    if args.json:
+        print(json.dumps(summary.as_dict()))
+    else:
+        bar.finish(summary.elapsed)
+    return 0
+
+
+async def _send(args) -> int:
+    async with open_printer(args.port, args.protocol, args.baud, _options(args), _show_line) as printer:
+        for line in await printer.send(args.gcode):
+            print(line)
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        return trio.run(_print if args.command == "print" else _send, args)
+    except HostError as error:
+        print(f"\nfake-marlin-host: {error}", file=sys.stderr)
+        return 1 if isinstance(error, RemoteError) else 2
+    except KeyboardInterrupt:
+        print("\nfake-marlin-host: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,1 @@
+"""Host-side codecs: encode what the host sends, parse what the printer says. Sans-IO."""

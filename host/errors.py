@@ -1,0 +1,33 @@
+"""Errors split by whose fault they are: the printer/link (remote) or the caller (usage)."""
+
+
+class HostError(Exception):
+    """Anything the host client reports to its user."""
+
+
+class RemoteError(HostError):
+    """The printer or the link misbehaved."""
+
+
+class PortError(RemoteError):
+    """The serial port could not be opened."""
+
+
+class ConnectionLost(RemoteError):
+    """The port went away while in use."""
+
+
+class PrinterNotResponding(RemoteError):
+    """A packet went unanswered through every retry."""
+
+
+class PrinterReset(RemoteError):
+    """The printer restarted mid-session; what it had queued is gone."""
+
+
+class UsageError(HostError):
+    """The caller asked for something that cannot be done."""
+
+
+class CommandError(UsageError):
+    """A command cannot be sent as given (too long, not ASCII)."""

@@ -1,0 +1,59 @@
+"""A serial port as a trio byte stream: pyserial opens and configures it, trio moves the bytes."""
+
+import os
+
+import serial
+import trio
+
+from host.errors import ConnectionLost, PortError
+
+
+class SerialPort:
+    def __init__(self, device: serial.Serial, path: str) -> None:
+        self._device = device
+        self.path = path
+        self._fd = device.fileno()
+        os.set_blocking(self._fd, False)
+
+    @classmethod
+    def open(cls, path: str, baudrate: int) -> "SerialPort":
+        try:
+            device = serial.Serial(path, baudrate, timeout=0, exclusive=True)
+        except serial.SerialException as error:
+            reason = os.strerror(error.errno) if error.errno else str(error)
+            raise PortError(f"cannot open {path}: {reason}") from None
+        except (OSError, ValueError) as error:
+            raise PortError(f"cannot open {path}: {error}") from None
+        return cls(device, path)
+
+    async def receive_some(self, max_bytes: int = 4096) -> bytes:
+        while True:
+            await trio.lowlevel.wait_readable(self._fd)
+            try:
+                data = os.read(self._fd, max_bytes)
+            except BlockingIOError:
+                continue
+            except OSError as error:
+                raise ConnectionLost(f"{self.path} went away: {error.strerror}") from None
+            if not data:
+                raise ConnectionLost(f"{self.path} was closed by the other side")
+            return data
+
+    async def send_all(self, data: bytes) -> None:
+        view = memoryview(data)
+        while view:
+            await trio.lowlevel.wait_writable(self._fd)
+            try:
+                written = os.write(self._fd, view)
+            except BlockingIOError:
+                continue
+            except OSError as error:
+                raise ConnectionLost(f"{self.path} went away: {error.strerror}") from None
+            view = view[written:]
+
+    def close(self) -> None:
+        try:
+            trio.lowlevel.notify_closing(self._fd)
+        except RuntimeError:
+            pass  # not inside trio: nobody can be waiting on it
+        self._device.close()

@@ -1,0 +1,220 @@
+"""Go-back-N sending over Ultimaker sequence numbers, as a sans-IO state machine.
+
+The printer checks every sequence number and never executes a packet twice, so nothing here can
+make a command run twice; these rules only decide how fast a loss is repaired:
+- `o` NN: packet NN was executed, and so was every packet before it (execution is in order).
+- `r` NN: the printer expects NN next. Packets before NN reached it (their `o` is still to come);
+  NN and after are sent again. One bad packet makes the printer answer `r` NN for each packet
+  behind it too, so those echoes of an error already handled are ignored.
+- `r` NN far outside the window before any answer: the printer counted from somewhere else
+  before we connected, so the packets are renumbered from NN. After the first answer the same
+  means the printer was reset; renumbering then could run a command twice, so it is an error.
+- A packet unanswered for `timeout` is sent again with all after it. A packet known to have
+  arrived whose `o` never comes (lost on the way back) counts as done after `received_timeout`.
+"""
+
+from collections import deque
+from dataclasses import dataclass, field
+from enum import Enum, auto
+
+from host.errors import PrinterNotResponding, PrinterReset
+from wire.ultimaker import next_seq, seq_distance
+
+
+class PacketState(Enum):
+    SENT = auto()  # on its way or waiting in the printer, no answer yet
+    RECEIVED = auto()  # an `r` frame showed the printer has it; its `o` is still to come
+
+
+@dataclass(eq=False)
+class Ticket:
+    """One submitted command, and what became of it."""
+
+    text: str
+    response: tuple[str, ...] = ()
+    done: bool = False
+    # False when the command completed without its own `o` (lost on the way back), so its
+    # response data, if it had any, is unknown.
+    confirmed: bool = False
+
+
+@dataclass(eq=False)
+class _Packet:
+    ticket: Ticket
+    seq: int
+    state: PacketState = PacketState.SENT
+    deadline: float = 0.0
+    transmissions: int = 0
+    needs_transmit: bool = True
+
+
+@dataclass(frozen=True)
+class Transmit:
+    seq: int
+    text: str
+    resend: bool
+
+
+@dataclass
+class WindowStats:
+    packets_sent: int = 0
+    resends: int = 0
+    timeouts: int = 0
+    rejects: int = 0
+    unconfirmed: int = 0
+
+
+@dataclass
+class GoBackNWindow:
+    window: int = 3
+    timeout: float = 2.0
+    received_timeout: float = 10.0
+    max_transmissions: int = 8
+    first_seq: int = 0
+    stats: WindowStats = field(default_factory=WindowStats)
+
+    def __post_init__(self) -> None:
+        if not 1 <= self.window <= 32:
+            raise ValueError("window must be 1 to 32 packets")
+        self._backlog: deque[Ticket] = deque()
+        self._in_flight: list[_Packet] = []
+        self._next_seq = self.first_seq
+        self._echo_seq: int | None = None  # the `r` NN whose echoes we expect
+        self._echoes_left = 0
+        self._synchronised = False  # has the printer answered with a sequence number of ours?
+
+    # -- what the caller asks -----------------------------------------------------------
+    def submit(self, text: str) -> Ticket:
+        ticket = Ticket(text)
+        self._backlog.append(ticket)
+        return ticket
+
+    @property
+    def backlog(self) -> int:
+        return len(self._backlog)
+
+    @property
+    def in_flight(self) -> int:
+        return len(self._in_flight)
+
+    @property
+    def idle(self) -> bool:
+        return not self._backlog and not self._in_flight
+
+    def next_deadline(self) -> float | None:
+        return min((packet.deadline for packet in self._in_flight), default=None)
+
+    # -- time and transmission -----------------------------------------------------------
+    def poll(self, now: float) -> list[Transmit]:
+        """Handle expired timers, then return what to put on the wire now, in order."""
+        self._expire(now)
+        while len(self._in_flight) < self.window and self._backlog:
+            self._in_flight.append(_Packet(self._backlog.popleft(), self._next_seq))
+            self._next_seq = next_seq(self._next_seq)
+        transmits = []
+        for packet in self._in_flight:
+            if not packet.needs_transmit:
+                continue
+            resend = packet.transmissions > 0
+            packet.needs_transmit = False
+            packet.transmissions += 1
+            packet.state = PacketState.SENT
+            packet.deadline = now + self.timeout
+            self.stats.packets_sent += 1
+            self.stats.resends += resend
+            transmits.append(Transmit(packet.seq, packet.ticket.text, resend))
+        return transmits
+
+    def _expire(self, now: float) -> None:
+        while self._in_flight:
+            head = self._in_flight[0]
+            if head.state is PacketState.RECEIVED and head.deadline <= now:
+                self._complete(1, (), confirmed=False)
+                continue
+            break
+        for index, packet in enumerate(self._in_flight):
+            if packet.state is PacketState.SENT and not packet.needs_transmit and packet.deadline <= now:
+                if packet.transmissions >= self.max_transmissions:
+                    raise PrinterNotResponding(
+                        f"no answer to {packet.ticket.text!r} after {packet.transmissions} tries"
+                    )
+                self.stats.timeouts += 1
+                self._go_back(index)
+                break
+
+    def _go_back(self, index: int) -> None:
+        for packet in self._in_flight[index:]:
+            packet.needs_transmit = True
+
+    # -- what the printer says -----------------------------------------------------------
+    def on_ack(self, seq: int, response: tuple[str, ...]) -> list[Ticket]:
+        """An `o` frame; returns the tickets it completes, oldest first."""
+        position = self._position(seq)
+        if position is None or position >= len(self._in_flight):
+            return []  # an echo of something already settled
+        self._synchronised = True
+        echo_position = None if self._echo_seq is None else self._position(self._echo_seq)
+        if echo_position is not None and echo_position <= position:
+            # The resent packet got through, so no echo of its rejection can follow.
+            self._echo_seq, self._echoes_left = None, 0
+        done = self._complete(position, (), confirmed=True)
+        done += self._complete(1, response, confirmed=True)
+        return done
+
+    def on_reject(self, seq: int, now: float) -> None:
+        """An `r` frame: the printer expects `seq` next."""
+        self.stats.rejects += 1
+        if seq == self._echo_seq and self._echoes_left > 0:
+            self._echoes_left -= 1
+            return
+        position = self._position(seq)
+        if position is None:
+            if 0 < seq_distance(seq, self._base()) <= 2 * self.window:
+                return  # about packets already settled
+            if self._synchronised:
+                raise PrinterReset(
+                    f"the printer now expects sequence number {seq}: it was reset, "
+                    "and commands it had queued may be lost"
+                )
+            self._renumber(seq)
+            return
+        self._synchronised = True
+        for packet in self._in_flight[:position]:
+            if packet.state is PacketState.SENT:
+                packet.state = PacketState.RECEIVED
+                packet.needs_transmit = False
+                packet.deadline = now + self.received_timeout
+        behind = self._in_flight[position:]
+        # Each packet sent after `seq` that reaches the printer is rejected with `r` seq again.
+        self._echo_seq = seq
+        self._echoes_left = sum(1 for packet in behind[1:] if packet.transmissions > 0)
+        self._go_back(position)
+
+    def _renumber(self, seq: int) -> None:
+        self._next_seq = seq
+        for packet in self._in_flight:
+            packet.seq = self._next_seq
+            packet.state = PacketState.SENT
+            packet.needs_transmit = True
+            self._next_seq = next_seq(self._next_seq)
+        self._echo_seq, self._echoes_left = None, 0
+
+    def _position(self, seq: int) -> int | None:
+        """Where `seq` stands in the window: 0..in_flight (in_flight = the next one to send)."""
+        distance = seq_distance(self._base(), seq)
+        return distance if distance <= len(self._in_flight) else None
+
+    def _base(self) -> int:
+        return self._in_flight[0].seq if self._in_flight else self._next_seq
+
+    def _complete(self, count: int, response: tuple[str, ...], confirmed: bool) -> list[Ticket]:
+        done = []
+        for packet in self._in_flight[:count]:
+            ticket = packet.ticket
+            ticket.done = True
+            ticket.confirmed = confirmed
+            ticket.response = response
+            self.stats.unconfirmed += not confirmed
+            done.append(ticket)
+        del self._in_flight[:count]
+        return done

@@ -1,0 +1,1 @@
+"""Wire primitives shared by the printer (emulator) and the host client."""
