@@ -1,0 +1,62 @@
+"""An in-memory link: the printer on one end, a host's byte stream on the other.
+
+Used to run the printer and a host in one process (tests on trio's autojump clock, scenarios),
+with the same interface as PtyLink.
+"""
+
+import math
+
+import trio
+
+from emulator.link.pty import HostOpened
+
+
+class MemoryLink:
+    def __init__(self) -> None:
+        self._inbound_send, self._inbound = trio.open_memory_channel[bytes | HostOpened](math.inf)
+        self._outbound = bytearray()
+        self._outbound_ready = trio.Event()
+        self.host = HostEnd(self)
+
+    # -- the printer's side (as PtyLink) -------------------------------------------------
+    async def receive(self) -> bytes | HostOpened:
+        return await self._inbound.receive()
+
+    def send(self, data: bytes) -> None:
+        if data:
+            self._outbound += data
+            self._outbound_ready.set()
+
+    def discard_output(self) -> None:
+        self._outbound.clear()
+
+    async def run_writer(self) -> None:
+        await trio.sleep_forever()
+
+    # -- the host's side ---------------------------------------------------------------
+    def open_host(self) -> "HostEnd":
+        """A host opens the port: stale output is flushed and the printer is told (resets)."""
+        self._outbound.clear()
+        self._inbound_send.send_nowait(HostOpened())
+        return self.host
+
+
+class HostEnd:
+    """The host's end, a trio byte stream (receive_some / send_all)."""
+
+    def __init__(self, link: MemoryLink) -> None:
+        self._link = link
+
+    async def send_all(self, data: bytes) -> None:
+        await trio.lowlevel.checkpoint()
+        if data:
+            self._link._inbound_send.send_nowait(bytes(data))
+
+    async def receive_some(self, max_bytes: int = 4096) -> bytes:
+        link = self._link
+        while not link._outbound:
+            link._outbound_ready = trio.Event()
+            await link._outbound_ready.wait()
+        data = bytes(link._outbound[:max_bytes])
+        del link._outbound[:max_bytes]
+        return data

@@ -1,0 +1,39 @@
+import io
+from contextlib import asynccontextmanager
+
+import pytest
+import trio
+
+from emulator.journal import Journal
+from emulator.link.memory import MemoryLink
+from emulator.printer.model import Printer
+from emulator.server import PrinterServer, ServerConfig
+
+
+class RunningPrinter:
+    def __init__(self, link: MemoryLink, server: PrinterServer, journal_text: io.StringIO) -> None:
+        self.link = link
+        self.server = server
+        self._journal_text = journal_text
+
+    @property
+    def journal(self) -> list[str]:
+        return self._journal_text.getvalue().splitlines()
+
+
+@asynccontextmanager
+async def running_printer(config: ServerConfig = ServerConfig()):
+    """A printer on an in-memory link, for the length of the block."""
+    link = MemoryLink()
+    journal_text = io.StringIO()
+    server = PrinterServer(link, Printer(), Journal(journal_text), config)
+    async with trio.open_nursery() as nursery:
+        nursery.start_soon(server.run)
+        await trio.sleep(0)
+        yield RunningPrinter(link, server, journal_text)
+        nursery.cancel_scope.cancel()
+
+
+@pytest.fixture
+def printer_factory():
+    return running_printer

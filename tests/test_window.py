@@ -1,0 +1,131 @@
+"""The host's go-back-N window, driven by hand with explicit times."""
+
+import pytest
+
+from host.errors import PrinterNotResponding, PrinterReset
+from host.window import GoBackNWindow
+
+
+def seqs(transmits):
+    return [t.seq for t in transmits]
+
+
+def loaded(n, **options):
+    window = GoBackNWindow(**options)
+    tickets = [window.submit(f"G1 X{i}") for i in range(n)]
+    return window, tickets
+
+
+def test_at_most_window_packets_are_in_flight():
+    window, _ = loaded(10, window=3)
+    assert seqs(window.poll(0.0)) == [0, 1, 2]
+    assert window.poll(0.0) == []
+    window.on_ack(0, ("data",))
+    assert seqs(window.poll(0.0)) == [3]
+
+
+def test_an_ack_completes_its_packet_and_every_earlier_one():
+    window, tickets = loaded(3)
+    window.poll(0.0)
+    done = window.on_ack(1, ("T:20",))
+    assert done == tickets[:2]
+    assert tickets[1].response == ("T:20",) and tickets[0].response == ()
+    assert all(t.done and t.confirmed for t in tickets[:2])
+    assert window.on_ack(1, ()) == []  # a duplicate changes nothing
+
+
+def test_a_reject_goes_back_to_its_number_and_ignores_the_echoes_of_the_same_error():
+    window, tickets = loaded(3)
+    window.poll(0.0)
+    window.on_reject(1, now=0.1)
+    assert [(t.seq, t.resend) for t in window.poll(0.1)] == [(1, True), (2, True)]
+    # The printer also rejected packet 2 as it arrived behind the bad packet 1: same `r01`.
+    window.on_reject(1, now=0.1)
+    assert window.poll(0.1) == []
+    assert window.stats.resends == 2
+
+
+def test_a_second_real_reject_after_the_echoes_goes_back_again():
+    window, _ = loaded(2, window=2)
+    window.poll(0.0)
+    window.on_reject(0, now=0.0)
+    window.poll(0.0)
+    window.on_reject(0, now=0.0)  # echo for packet 1
+    window.on_reject(0, now=0.0)  # the resent 0 was hit too
+    assert seqs(window.poll(0.0)) == [0, 1]
+
+
+def test_packets_before_a_reject_wait_for_their_ok_without_being_resent():
+    window, tickets = loaded(3)
+    window.poll(0.0)
+    window.on_reject(3, now=0.0)  # the printer has all three
+    assert window.poll(1.0) == []
+    assert window.poll(5.0) == []  # no resend timeout for packets known to have arrived
+    assert window.on_ack(2, ()) == tickets
+
+
+def test_a_received_packet_whose_ok_is_lost_completes_unconfirmed():
+    window, tickets = loaded(1, timeout=2.0, received_timeout=10.0)
+    window.poll(0.0)
+    window.on_reject(1, now=0.5)
+    window.poll(10.4)
+    assert not tickets[0].done
+    window.poll(10.6)
+    assert tickets[0].done and not tickets[0].confirmed and window.idle
+
+
+def test_timeout_resends_the_oldest_unanswered_packet_and_all_after_it():
+    window, _ = loaded(3, timeout=2.0)
+    window.poll(0.0)
+    window.on_ack(0, ())
+    assert window.next_deadline() == 2.0
+    assert window.poll(1.9) == []
+    assert [(t.seq, t.resend) for t in window.poll(2.0)] == [(1, True), (2, True)]
+    assert window.stats.timeouts == 1
+
+
+def test_giving_up_after_the_allowed_transmissions():
+    window, _ = loaded(1, timeout=1.0, max_transmissions=3)
+    now = 0.0
+    window.poll(now)
+    with pytest.raises(PrinterNotResponding):
+        for _ in range(5):
+            now += 1.0
+            window.poll(now)
+    assert window.stats.packets_sent == 3
+
+
+def test_sequence_numbers_wrap_around():
+    window, tickets = loaded(600, window=3)
+    sent = []
+    while not window.idle:
+        batch = window.poll(0.0)
+        sent += seqs(batch)
+        window.on_ack(batch[-1].seq, ())
+    assert sent == [n % 255 for n in range(600)]
+    assert all(t.done for t in tickets)
+
+
+def test_a_printer_counting_from_elsewhere_at_connect_gets_renumbered_packets():
+    window, _ = loaded(2)
+    window.poll(0.0)
+    window.on_reject(37, now=0.0)
+    assert seqs(window.poll(0.0)) == [37, 38]
+
+
+def test_a_sequence_restart_mid_session_is_a_reset_not_a_renumbering():
+    window, _ = loaded(4, window=2)
+    window.poll(0.0)
+    window.on_ack(0, ())
+    window.poll(0.0)
+    with pytest.raises(PrinterReset):
+        window.on_reject(100, now=0.0)
+
+
+def test_a_late_reject_about_settled_packets_is_ignored():
+    window, _ = loaded(6, window=3)
+    window.poll(0.0)
+    window.on_ack(2, ())
+    window.poll(0.0)
+    window.on_reject(1, now=0.0)
+    assert window.poll(0.0) == []
