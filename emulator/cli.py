@@ -90,8 +90,16 @@ async def _serve_until_signalled(server: PrinterServer) -> None:
                 break
 
 
+def _interrupt(signum, frame):
+    raise KeyboardInterrupt
+
+
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
+    # Until trio takes over the signals (and in case one lands before it does), a SIGTERM or
+    # SIGHUP must unwind like Ctrl-C so that the symlink is removed.
+    signal.signal(signal.SIGTERM, _interrupt)
+    signal.signal(signal.SIGHUP, _interrupt)
     try:
         journal = Journal.open(args.journal)
     except OSError as error:
@@ -110,6 +118,8 @@ def main(argv: list[str] | None = None) -> int:
     server = PrinterServer(link, printer, journal, ServerConfig(args.protocol, args.boot_delay))
     try:
         trio.run(_serve_until_signalled, server, clock=ScaledClock(args.speed))
+    except KeyboardInterrupt:
+        pass
     finally:
         symlink.remove()
         journal.close()

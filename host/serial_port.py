@@ -34,9 +34,9 @@ class SerialPort:
             except BlockingIOError:
                 continue
             except OSError as error:
-                raise ConnectionLost(f"{self.path} went away: {error.strerror}") from None
+                raise ConnectionLost(f"lost the connection to {self.path}: {error.strerror}") from None
             if not data:
-                raise ConnectionLost(f"{self.path} was closed by the other side")
+                raise ConnectionLost(f"lost the connection to {self.path}: the other side closed it")
             return data
 
     async def send_all(self, data: bytes) -> None:
@@ -48,7 +48,7 @@ class SerialPort:
             except BlockingIOError:
                 continue
             except OSError as error:
-                raise ConnectionLost(f"{self.path} went away: {error.strerror}") from None
+                raise ConnectionLost(f"lost the connection to {self.path}: {error.strerror}") from None
             view = view[written:]
 
     def close(self) -> None:
