@@ -7,8 +7,15 @@ import time
 
 import trio
 
-from host.client import DEFAULT_BAUDRATE, PROTOCOLS, ClientOptions, load_job, open_printer
-from host.codecs.ultimaker import Line
+from host.client import (
+    DEFAULT_BAUDRATE,
+    PROTOCOLS,
+    ClientOptions,
+    load_job,
+    open_printer,
+    sole_exception,
+)
+from host.codecs.ultimaker import Line, LineKind
 from host.errors import HostError, RemoteError
 
 
@@ -38,8 +45,13 @@ def build_parser() -> argparse.ArgumentParser:
         help="seconds before an unanswered packet is sent again (default 2)",
     )
     common.add_argument(
+        "--long-timeout", type=_positive(float), default=300.0,
+        help="the same while the printer is busy with G28, M400, M109, a full planner (default 300)",
+    )
+    common.add_argument(
         "--retries", type=_positive(int), default=8, help="transmissions of one packet before giving up"
     )
+    common.add_argument("-v", "--verbose", action="store_true", help="also show the printer's LOG lines")
     commands = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     print_parser = commands.add_parser("print", parents=[common], help="stream a G-code file")
     print_parser.add_argument("port", help="serial device, e.g. /dev/ttyACM0 or the emulator's pty")
@@ -82,17 +94,29 @@ class ProgressBar:
         sys.stderr.write(f"{end}{self.line()}  timeouts: {self.stats.timeouts}  {elapsed:.1f} s\n")
 
 
-def _show_line(line: Line) -> None:
-    print(f"printer: {line.kind.value}:{line.text}", file=sys.stderr)
+def _line_printer(verbose: bool):
+    def show(line: Line) -> None:
+        if line.kind is LineKind.LOG and not verbose:
+            return
+        # Start from a clean line in case a progress bar is being drawn there.
+        start = "\r\033[K" if sys.stderr.isatty() else ""
+        print(f"{start}printer: {line.kind.value}:{line.text}", file=sys.stderr)
+
+    return show
 
 
 def _options(args) -> ClientOptions:
-    return ClientOptions(window=args.window, timeout=args.timeout, max_transmissions=args.retries)
+    return ClientOptions(
+        window=args.window,
+        timeout=args.timeout,
+        long_timeout=args.long_timeout,
+        max_transmissions=args.retries,
+    )
 
 
 async def _print(args) -> int:
     job = load_job(args.file)
-    async with open_printer(args.port, args.protocol, args.baud, _options(args), _show_line) as printer:
+    async with open_printer(args.port, args.protocol, args.baud, _options(args), _line_printer(args.verbose)) as printer:
         bar = ProgressBar(len(job), printer.stats)
         summary = await printer.print_commands([c.text for c in job], bar.update)
     if args.json:
@@ -103,7 +127,7 @@ async def _print(args) -> int:
 
 
 async def _send(args) -> int:
-    async with open_printer(args.port, args.protocol, args.baud, _options(args), _show_line) as printer:
+    async with open_printer(args.port, args.protocol, args.baud, _options(args), _line_printer(args.verbose)) as printer:
         for line in await printer.send(args.gcode):
             print(line)
     return 0
@@ -113,12 +137,16 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
         return trio.run(_print if args.command == "print" else _send, args)
-    except HostError as error:
-        print(f"\nfake-marlin-host: {error}", file=sys.stderr)
-        return 1 if isinstance(error, RemoteError) else 2
-    except KeyboardInterrupt:
-        print("\nfake-marlin-host: interrupted", file=sys.stderr)
-        return 130
+    except BaseException as raised:  # noqa: BLE001 - sorted below, the rest re-raised
+        error = sole_exception(raised)
+        start = "\n" if sys.stderr.isatty() else ""  # end a progress bar's line
+        if isinstance(error, HostError):
+            print(f"{start}fake-marlin-host: {error}", file=sys.stderr)
+            return 1 if isinstance(error, RemoteError) else 2
+        if isinstance(error, KeyboardInterrupt):
+            print(f"{start}fake-marlin-host: interrupted", file=sys.stderr)
+            return 130
+        raise
 
 
 if __name__ == "__main__":

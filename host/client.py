@@ -51,7 +51,8 @@ class PrintSummary:
 @dataclass(frozen=True)
 class ClientOptions:
     window: int = 3
-    timeout: float = 2.0  # seconds before an unanswered packet is sent again
+    timeout: float = 2.0  # seconds of silence before an unanswered packet is sent again
+    long_timeout: float = 300.0  # the same while the printer is known to be busy
     received_timeout: float = 10.0
     max_transmissions: int = 8
     settle: float = 2.0  # how long to wait for the printer's boot message before sending
@@ -71,6 +72,7 @@ class UltimakerClient:
         self._window = GoBackNWindow(
             window=options.window,
             timeout=options.timeout,
+            long_timeout=options.long_timeout,
             received_timeout=options.received_timeout,
             max_transmissions=options.max_transmissions,
         )
@@ -109,26 +111,31 @@ class UltimakerClient:
                 self._handle(event)
 
     def _handle(self, event) -> None:
+        now = trio.current_time()
         if isinstance(event, Ack):
-            done = self._window.on_ack(event.seq, tuple(self._response))
+            done = self._window.on_ack(event.seq, event.room, tuple(self._response), now)
             self._response.clear()
             self.room = event.room
             self._completed(done)
         elif isinstance(event, Reject):
             self.room = event.room
-            self._window.on_reject(event.seq, trio.current_time())
+            self._window.on_reject(event.seq, event.room, now)
             self._sender_wake.set()
         elif isinstance(event, RoomInfo):
             self.room = event.room
+            self._window.heard(now, event.room)
             self._printer_seen.set()
+            self._sender_wake.set()  # deadlines moved
         elif isinstance(event, CorruptFrame):
             self.corrupt_frames += 1
-        elif event.kind is LineKind.RESPONSE:
-            self._response.append(event.text)
         else:
-            if event.kind is LineKind.LOG:
-                self._printer_seen.set()
-            self._on_line(event)
+            self._window.heard(now)
+            if event.kind is LineKind.RESPONSE:
+                self._response.append(event.text)
+            else:
+                if event.kind is LineKind.LOG:
+                    self._printer_seen.set()
+                self._on_line(event)
 
     def _completed(self, tickets: list[Ticket]) -> None:
         if tickets:
@@ -151,7 +158,8 @@ class UltimakerClient:
                     await self._stream.send_all(encode_command(transmit.seq, transmit.text))
             # poll() may have moved commands out of the backlog, or completed some.
             self._notify()
-            with trio.move_on_at(self._window.next_deadline() or math.inf):
+            deadline = self._window.next_deadline()
+            with trio.move_on_at(math.inf if deadline is None else deadline):
                 await wake.wait()
 
     async def _wait_until(self, condition: Callable[[], bool]) -> None:
@@ -229,14 +237,25 @@ async def connect(
     if protocol not in PROTOCOLS:
         raise CommandError(f"unknown protocol {protocol!r}; choose from {', '.join(PROTOCOLS)}")
     client = UltimakerClient(stream, options, on_line)
-    async with trio.open_nursery() as nursery:
-        nursery.start_soon(client.run, nursery.cancel_scope)
-        try:
-            yield client
-        finally:
-            nursery.cancel_scope.cancel()
+    try:
+        async with trio.open_nursery() as nursery:
+            nursery.start_soon(client.run, nursery.cancel_scope)
+            try:
+                yield client
+            finally:
+                nursery.cancel_scope.cancel()
+    except BaseExceptionGroup as group:
+        # The caller's own error (or Ctrl-C) comes back as itself, not wrapped in a group.
+        raise sole_exception(group) from None
     if client.failure is not None:
         raise client.failure
+
+
+def sole_exception(error: BaseException) -> BaseException:
+    """The one exception inside (nested) single-member groups, or `error` itself."""
+    while isinstance(error, BaseExceptionGroup) and len(error.exceptions) == 1:
+        error = error.exceptions[0]
+    return error
 
 
 @asynccontextmanager

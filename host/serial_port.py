@@ -1,5 +1,6 @@
 """A serial port as a trio byte stream: pyserial opens and configures it, trio moves the bytes."""
 
+import errno
 import os
 
 import serial
@@ -20,7 +21,12 @@ class SerialPort:
         try:
             device = serial.Serial(path, baudrate, timeout=0, exclusive=True)
         except serial.SerialException as error:
-            reason = os.strerror(error.errno) if error.errno else str(error)
+            if error.errno:
+                reason = os.strerror(error.errno)
+            elif f"({errno.ENOTTY}," in str(error):
+                reason = "not a serial port"
+            else:
+                reason = str(error)
             raise PortError(f"cannot open {path}: {reason}") from None
         except (OSError, ValueError) as error:
             raise PortError(f"cannot open {path}: {error}") from None

@@ -9,16 +9,35 @@ make a command run twice; these rules only decide how fast a loss is repaired:
 - `r` NN far outside the window before any answer: the printer counted from somewhere else
   before we connected, so the packets are renumbered from NN. After the first answer the same
   means the printer was reset; renumbering then could run a command twice, so it is an error.
-- A packet unanswered for `timeout` is sent again with all after it. A packet known to have
-  arrived whose `o` never comes (lost on the way back) counts as done after `received_timeout`.
+- When the printer has been silent for `timeout` since a packet was sent, the packet is sent
+  again with all after it. Silence is expected while the printer is busy (its planner is full,
+  or the command it is executing is a long one such as G28, M400 or M109), so then the wait
+  is `long_timeout`: generous, because M400 behind a full planner of slow moves, or heating,
+  takes minutes. It rarely costs anything: a packet lost behind a long command is still caught
+  at once by the `r` its successor draws. A packet known to have arrived whose `o` never comes (lost on the way back)
+  counts as done after `received_timeout` of silence.
 """
 
+import math
+import re
 from collections import deque
 from dataclasses import dataclass, field
 from enum import Enum, auto
 
 from host.errors import PrinterNotResponding, PrinterReset
 from wire.ultimaker import next_seq, seq_distance
+
+
+# Commands that keep the printer silent for long (OctoPrint's list, plus heat-and-wait).
+LONG_COMMANDS = frozenset(
+    {"G4", "G28", "G29", "G30", "G32", "M109", "M190", "M191", "M226", "M303", "M400", "M600"}
+)
+_COMMAND_WORD = re.compile(r"\s*([GMgm])0*(\d+)")
+
+
+def is_long_command(text: str) -> bool:
+    match = _COMMAND_WORD.match(text)
+    return bool(match) and f"{match[1].upper()}{match[2] or '0'}" in LONG_COMMANDS
 
 
 class PacketState(Enum):
@@ -43,7 +62,7 @@ class _Packet:
     ticket: Ticket
     seq: int
     state: PacketState = PacketState.SENT
-    deadline: float = 0.0
+    since: float = 0.0  # when it was last sent, or found to have arrived
     transmissions: int = 0
     needs_transmit: bool = True
 
@@ -68,6 +87,7 @@ class WindowStats:
 class GoBackNWindow:
     window: int = 3
     timeout: float = 2.0
+    long_timeout: float = 300.0
     received_timeout: float = 10.0
     max_transmissions: int = 8
     first_seq: int = 0
@@ -82,6 +102,8 @@ class GoBackNWindow:
         self._echo_seq: int | None = None  # the `r` NN whose echoes we expect
         self._echoes_left = 0
         self._synchronised = False  # has the printer answered with a sequence number of ours?
+        self._last_heard = -math.inf
+        self._printer_room: int | None = None
 
     # -- what the caller asks -----------------------------------------------------------
     def submit(self, text: str) -> Ticket:
@@ -102,7 +124,28 @@ class GoBackNWindow:
         return not self._backlog and not self._in_flight
 
     def next_deadline(self) -> float | None:
-        return min((packet.deadline for packet in self._in_flight), default=None)
+        return min((self._due(packet) for packet in self._timed_packets()), default=None)
+
+    def _timed_packets(self) -> list["_Packet"]:
+        timed = [p for p in self._in_flight if p.state is PacketState.SENT and not p.needs_transmit]
+        if self._in_flight and self._in_flight[0].state is PacketState.RECEIVED:
+            timed.append(self._in_flight[0])  # they complete in order: only the head matters
+        return timed
+
+    def _due(self, packet: "_Packet") -> float:
+        busy = self._printer_room == 0 or (
+            bool(self._in_flight) and is_long_command(self._in_flight[0].ticket.text)
+        )
+        patience = self.long_timeout if busy else self.timeout
+        if packet.state is PacketState.RECEIVED:
+            patience = max(patience, self.received_timeout)
+        return max(packet.since, self._last_heard) + patience
+
+    def heard(self, now: float, room: int | None = None) -> None:
+        """The printer said something (any valid line or frame); `room` if it told its room."""
+        self._last_heard = max(self._last_heard, now)
+        if room is not None:
+            self._printer_room = room
 
     # -- time and transmission -----------------------------------------------------------
     def poll(self, now: float) -> list[Transmit]:
@@ -119,7 +162,7 @@ class GoBackNWindow:
             packet.needs_transmit = False
             packet.transmissions += 1
             packet.state = PacketState.SENT
-            packet.deadline = now + self.timeout
+            packet.since = now
             self.stats.packets_sent += 1
             self.stats.resends += resend
             transmits.append(Transmit(packet.seq, packet.ticket.text, resend))
@@ -128,15 +171,16 @@ class GoBackNWindow:
     def _expire(self, now: float) -> None:
         while self._in_flight:
             head = self._in_flight[0]
-            if head.state is PacketState.RECEIVED and head.deadline <= now:
+            if head.state is PacketState.RECEIVED and self._due(head) <= now:
                 self._complete(1, (), confirmed=False)
                 continue
             break
         for index, packet in enumerate(self._in_flight):
-            if packet.state is PacketState.SENT and not packet.needs_transmit and packet.deadline <= now:
+            if packet.state is PacketState.SENT and not packet.needs_transmit and self._due(packet) <= now:
                 if packet.transmissions >= self.max_transmissions:
                     raise PrinterNotResponding(
-                        f"no answer to {packet.ticket.text!r} after {packet.transmissions} tries"
+                        f"no answer to {packet.ticket.text!r} after {packet.transmissions} tries; "
+                        "is a printer speaking this protocol on the port?"
                     )
                 self.stats.timeouts += 1
                 self._go_back(index)
@@ -147,8 +191,9 @@ class GoBackNWindow:
             packet.needs_transmit = True
 
     # -- what the printer says -----------------------------------------------------------
-    def on_ack(self, seq: int, response: tuple[str, ...]) -> list[Ticket]:
+    def on_ack(self, seq: int, room: int, response: tuple[str, ...], now: float) -> list[Ticket]:
         """An `o` frame; returns the tickets it completes, oldest first."""
+        self.heard(now, room)
         position = self._position(seq)
         if position is None or position >= len(self._in_flight):
             return []  # an echo of something already settled
@@ -161,8 +206,9 @@ class GoBackNWindow:
         done += self._complete(1, response, confirmed=True)
         return done
 
-    def on_reject(self, seq: int, now: float) -> None:
+    def on_reject(self, seq: int, room: int, now: float) -> None:
         """An `r` frame: the printer expects `seq` next."""
+        self.heard(now, room)
         self.stats.rejects += 1
         if seq == self._echo_seq and self._echoes_left > 0:
             self._echoes_left -= 1
@@ -183,7 +229,7 @@ class GoBackNWindow:
             if packet.state is PacketState.SENT:
                 packet.state = PacketState.RECEIVED
                 packet.needs_transmit = False
-                packet.deadline = now + self.received_timeout
+                packet.since = now
         behind = self._in_flight[position:]
         # Each packet sent after `seq` that reaches the printer is rejected with `r` seq again.
         self._echo_seq = seq

@@ -4,7 +4,7 @@ import trio
 
 from host.client import ClientOptions, connect
 from host.codecs.ultimaker import Ack, FrameParser, RoomInfo
-from host.errors import PrinterReset
+from host.errors import CommandError, PrinterReset
 from tests.conftest import running_printer
 from tests.faults import DamagingStream, LineDroppingStream
 from wire.ultimaker import encode_packet
@@ -110,3 +110,24 @@ async def test_a_full_planner_delays_ok_and_q_reports_room_again(autojump_clock)
     assert 0.5 < acks[15][0] < 0.55 and acks[15][1].room == 0  # the 16th waits for the first move
     rooms = [e.room for t, e in events if isinstance(e, RoomInfo) and t > start]
     assert rooms[0] == 1  # room opened after the host last saw 0
+
+
+async def test_a_healthy_print_with_long_moves_and_homing_never_resends(autojump_clock):
+    job = ["G28", "M400"] + [f"G1 X{200 * (n % 2)} Y{n} F1200" for n in range(40)] + ["M400", "G28 X"]
+    async with running_printer() as printer:
+        async with connect(printer.link.open_host()) as host:
+            summary = await host.print_commands(job)
+    assert printer.journal == job
+    assert summary.elapsed > 39 * 10  # 200 mm at 20 mm/s each (the first is empty): a full planner
+    assert (summary.resends, summary.timeouts, summary.rejects) == (0, 0, 0)
+
+
+async def test_a_callers_error_inside_the_block_comes_back_as_itself(autojump_clock):
+    async with running_printer() as printer:
+        try:
+            async with connect(printer.link.open_host()) as host:
+                await host.send("M117 caf\u00e9")
+        except CommandError as error:
+            assert "ASCII" in str(error)
+        else:
+            raise AssertionError("an unsendable command was accepted")

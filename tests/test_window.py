@@ -3,7 +3,7 @@
 import pytest
 
 from host.errors import PrinterNotResponding, PrinterReset
-from host.window import GoBackNWindow
+from host.window import GoBackNWindow, is_long_command
 
 
 def seqs(transmits):
@@ -20,27 +20,27 @@ def test_at_most_window_packets_are_in_flight():
     window, _ = loaded(10, window=3)
     assert seqs(window.poll(0.0)) == [0, 1, 2]
     assert window.poll(0.0) == []
-    window.on_ack(0, ("data",))
+    window.on_ack(0, 15, ("data",), 0.0)
     assert seqs(window.poll(0.0)) == [3]
 
 
 def test_an_ack_completes_its_packet_and_every_earlier_one():
     window, tickets = loaded(3)
     window.poll(0.0)
-    done = window.on_ack(1, ("T:20",))
+    done = window.on_ack(1, 15, ("T:20",), 0.0)
     assert done == tickets[:2]
     assert tickets[1].response == ("T:20",) and tickets[0].response == ()
     assert all(t.done and t.confirmed for t in tickets[:2])
-    assert window.on_ack(1, ()) == []  # a duplicate changes nothing
+    assert window.on_ack(1, 15, (), 0.0) == []  # a duplicate changes nothing
 
 
 def test_a_reject_goes_back_to_its_number_and_ignores_the_echoes_of_the_same_error():
     window, tickets = loaded(3)
     window.poll(0.0)
-    window.on_reject(1, now=0.1)
+    window.on_reject(1, 15, now=0.1)
     assert [(t.seq, t.resend) for t in window.poll(0.1)] == [(1, True), (2, True)]
     # The printer also rejected packet 2 as it arrived behind the bad packet 1: same `r01`.
-    window.on_reject(1, now=0.1)
+    window.on_reject(1, 15, now=0.1)
     assert window.poll(0.1) == []
     assert window.stats.resends == 2
 
@@ -48,26 +48,26 @@ def test_a_reject_goes_back_to_its_number_and_ignores_the_echoes_of_the_same_err
 def test_a_second_real_reject_after_the_echoes_goes_back_again():
     window, _ = loaded(2, window=2)
     window.poll(0.0)
-    window.on_reject(0, now=0.0)
+    window.on_reject(0, 15, now=0.0)
     window.poll(0.0)
-    window.on_reject(0, now=0.0)  # echo for packet 1
-    window.on_reject(0, now=0.0)  # the resent 0 was hit too
+    window.on_reject(0, 15, now=0.0)  # echo for packet 1
+    window.on_reject(0, 15, now=0.0)  # the resent 0 was hit too
     assert seqs(window.poll(0.0)) == [0, 1]
 
 
 def test_packets_before_a_reject_wait_for_their_ok_without_being_resent():
     window, tickets = loaded(3)
     window.poll(0.0)
-    window.on_reject(3, now=0.0)  # the printer has all three
+    window.on_reject(3, 15, now=0.0)  # the printer has all three
     assert window.poll(1.0) == []
     assert window.poll(5.0) == []  # no resend timeout for packets known to have arrived
-    assert window.on_ack(2, ()) == tickets
+    assert window.on_ack(2, 15, (), 0.0) == tickets
 
 
 def test_a_received_packet_whose_ok_is_lost_completes_unconfirmed():
     window, tickets = loaded(1, timeout=2.0, received_timeout=10.0)
     window.poll(0.0)
-    window.on_reject(1, now=0.5)
+    window.on_reject(1, 15, now=0.5)
     window.poll(10.4)
     assert not tickets[0].done
     window.poll(10.6)
@@ -77,7 +77,7 @@ def test_a_received_packet_whose_ok_is_lost_completes_unconfirmed():
 def test_timeout_resends_the_oldest_unanswered_packet_and_all_after_it():
     window, _ = loaded(3, timeout=2.0)
     window.poll(0.0)
-    window.on_ack(0, ())
+    window.on_ack(0, 15, (), 0.0)
     assert window.next_deadline() == 2.0
     assert window.poll(1.9) == []
     assert [(t.seq, t.resend) for t in window.poll(2.0)] == [(1, True), (2, True)]
@@ -101,7 +101,7 @@ def test_sequence_numbers_wrap_around():
     while not window.idle:
         batch = window.poll(0.0)
         sent += seqs(batch)
-        window.on_ack(batch[-1].seq, ())
+        window.on_ack(batch[-1].seq, 15, (), 0.0)
     assert sent == [n % 255 for n in range(600)]
     assert all(t.done for t in tickets)
 
@@ -109,23 +109,61 @@ def test_sequence_numbers_wrap_around():
 def test_a_printer_counting_from_elsewhere_at_connect_gets_renumbered_packets():
     window, _ = loaded(2)
     window.poll(0.0)
-    window.on_reject(37, now=0.0)
+    window.on_reject(37, 15, now=0.0)
     assert seqs(window.poll(0.0)) == [37, 38]
 
 
 def test_a_sequence_restart_mid_session_is_a_reset_not_a_renumbering():
     window, _ = loaded(4, window=2)
     window.poll(0.0)
-    window.on_ack(0, ())
+    window.on_ack(0, 15, (), 0.0)
     window.poll(0.0)
     with pytest.raises(PrinterReset):
-        window.on_reject(100, now=0.0)
+        window.on_reject(100, 15, now=0.0)
 
 
 def test_a_late_reject_about_settled_packets_is_ignored():
     window, _ = loaded(6, window=3)
     window.poll(0.0)
-    window.on_ack(2, ())
+    window.on_ack(2, 15, (), 0.0)
     window.poll(0.0)
-    window.on_reject(1, now=0.0)
+    window.on_reject(1, 15, now=0.0)
     assert window.poll(0.0) == []
+
+
+def test_timeouts_count_silence_not_age():
+    window, _ = loaded(3, timeout=2.0)
+    window.poll(0.0)
+    window.on_ack(0, 15, (), 1.5)  # the printer is working through the queue
+    assert window.poll(2.0) == []
+    assert window.next_deadline() == 3.5
+    assert seqs(window.poll(3.5)) == [1, 2]
+
+
+def test_a_full_planner_buys_patience_until_room_is_reported_again():
+    window, _ = loaded(4, timeout=2.0, long_timeout=60.0)
+    window.poll(0.0)
+    window.on_ack(0, 0, (), 0.0)  # planner full: the next o comes when a move finishes
+    window.poll(0.0)
+    assert window.poll(30.0) == []
+    window.heard(30.0, room=1)  # the q frame
+    assert window.next_deadline() == 32.0
+    assert seqs(window.poll(32.0)) == [1, 2, 3]
+
+
+def test_a_long_command_at_the_head_buys_patience():
+    window = GoBackNWindow(timeout=2.0, long_timeout=60.0)
+    window.submit("G28")
+    window.submit("G1 X1")
+    window.poll(0.0)
+    assert window.poll(59.0) == []
+    assert seqs(window.poll(60.0)) == [0, 1]
+
+
+@pytest.mark.parametrize(
+    "text, long",
+    [("G28", True), ("g28 X", True), ("G028", True), ("M109 S200", True), ("M400", True),
+     ("G1 X1", False), ("M105", False), ("G2", False), ("M1090", False), ("", False)],
+)
+def test_which_commands_are_long(text, long):
+    assert is_long_command(text) is long
