@@ -1,19 +1,20 @@
 """`fake-marlin`: run a virtual printer on a pseudo-terminal."""
 
 import argparse
+import contextlib
 import os
 import signal
 import sys
+import tempfile
+from pathlib import Path
 
 import trio
 
 from emulator.clock import ScaledClock
 from emulator.journal import Journal
 from emulator.link.pty import PtyLink
-from emulator.printer.model import Printer, PrinterConfig
-from emulator.server import PrinterServer, ServerConfig
-
-PROTOCOLS = ("ultimaker",)
+from emulator.printer.model import DEFAULT_CAPABILITIES, Printer, PrinterConfig
+from emulator.server import PROTOCOLS, PrinterServer, ServerConfig
 
 
 def _positive_float(text: str) -> float:
@@ -36,6 +37,13 @@ def _non_negative_float(text: str) -> float:
     return value
 
 
+def _capability(text: str) -> tuple[str, bool]:
+    name, _, value = text.partition("=")
+    if not name or not name.replace("_", "").isalnum() or value not in ("0", "1"):
+        raise argparse.ArgumentTypeError(f"expected NAME=0 or NAME=1, got {text!r}")
+    return name.upper(), value == "1"
+
+
 def _extruder_count(text: str) -> int:
     if not text.isdigit() or not 1 <= int(text) <= 8:
         raise argparse.ArgumentTypeError(f"must be a whole number from 1 to 8, got {text!r}")
@@ -47,7 +55,10 @@ def build_parser() -> argparse.ArgumentParser:
         prog="fake-marlin",
         description="Start a virtual Marlin printer on a pseudo-terminal and print its /dev/pts path.",
     )
-    parser.add_argument("--protocol", choices=PROTOCOLS, default="ultimaker", help="wire protocol")
+    parser.add_argument(
+        "--protocol", choices=PROTOCOLS, default="auto",
+        help="wire protocol; auto (default) decides from each connection's first bytes",
+    )
     parser.add_argument("--link", metavar="PATH", help="also make PATH a symlink to the pty")
     parser.add_argument("--journal", metavar="FILE", help="append each executed command to FILE")
     parser.add_argument(
@@ -55,6 +66,17 @@ def build_parser() -> argparse.ArgumentParser:
         help="run simulated printer time X times faster than real time (default 1)",
     )
     parser.add_argument("--extruders", type=_extruder_count, default=1, metavar="N")
+    parser.add_argument(
+        "--sd-dir", metavar="DIR",
+        help="directory that backs the SD card (default: a temporary one, removed at exit)",
+    )
+    parser.add_argument(
+        "--advanced-ok", action="store_true", help="Marlin's ADVANCED_OK: `ok N.. P.. B..`"
+    )
+    parser.add_argument(
+        "--capability", action="append", default=[], metavar="NAME=0|1", type=_capability,
+        help="set one M115 capability (repeatable), e.g. AUTOREPORT_TEMP=0",
+    )
     parser.add_argument(
         "--boot-delay", type=_non_negative_float, default=0.0, metavar="SECONDS",
         help="simulated time a reset takes before the printer answers (default 0)",
@@ -113,11 +135,22 @@ def main(argv: list[str] | None = None) -> int:
         print(f"fake-marlin: cannot create link {args.link}: {error.strerror or error}", file=sys.stderr)
         link.close()
         return 2
-    print(link.path, flush=True)
-    printer = Printer(PrinterConfig(extruders=args.extruders))
-    server = PrinterServer(link, printer, journal, ServerConfig(args.protocol, args.boot_delay))
     try:
-        trio.run(_serve_until_signalled, server, clock=ScaledClock(args.speed))
+        print(link.path, flush=True)
+        with contextlib.ExitStack() as cleanup:
+            sd_dir = Path(args.sd_dir) if args.sd_dir else Path(
+                cleanup.enter_context(tempfile.TemporaryDirectory(prefix="fake-marlin-sd-"))
+            )
+            capabilities = dict(DEFAULT_CAPABILITIES)
+            capabilities.update(args.capability)
+            config = PrinterConfig(
+                extruders=args.extruders, sd_dir=sd_dir, capabilities=tuple(capabilities.items())
+            )
+            server_config = ServerConfig(
+                protocol=args.protocol, boot_delay=args.boot_delay, advanced_ok=args.advanced_ok
+            )
+            server = PrinterServer(link, Printer(config), journal, server_config)
+            trio.run(_serve_until_signalled, server, clock=ScaledClock(args.speed))
     except KeyboardInterrupt:
         pass
     finally:

@@ -7,14 +7,19 @@ import trio
 from emulator.journal import Journal
 from emulator.link.pty import HostOpened, PtyLink
 from emulator.printer.model import Printer
+from emulator.sessions.detect import Detected, DetectingSession
+from emulator.sessions.marlin import MarlinSession
 from emulator.sessions.ultimaker import UltimakerSession
+
+PROTOCOLS = ("auto", "marlin", "ultimaker")
 
 
 @dataclass(frozen=True)
 class ServerConfig:
-    protocol: str = "ultimaker"
+    protocol: str = "auto"
     boot_delay: float = 0.0  # simulated seconds a reset takes before the printer answers
-    queue_size: int = 8
+    ultimaker_queue_size: int = 8
+    advanced_ok: bool = False
 
 
 class PrinterServer:
@@ -24,7 +29,7 @@ class PrinterServer:
         self.journal = journal
         self.config = config
         self.boots = 0
-        self._session: UltimakerSession | None = None
+        self._session = None
         self._session_scope = trio.CancelScope()
 
     async def run(self) -> None:
@@ -50,8 +55,23 @@ class PrinterServer:
             self.printer.reset(now)
             if self.config.boot_delay > 0:
                 await trio.sleep(self.config.boot_delay)
-            session = UltimakerSession(self.printer, self.journal, self.link.send, self.config.queue_size)
+            reason = "PowerUp" if self.boots == 0 else " External Reset"
+            session = self._make_session(self.config.protocol, reason)
             self.boots += 1
             session.boot()
             self._session = session
             await session.run()
+
+    def _make_session(self, protocol: str | Detected, reason: str):
+        protocol = protocol.value if isinstance(protocol, Detected) else protocol
+        if protocol == "auto":
+            return DetectingSession(lambda detected: self._make_session(detected, reason))
+        if protocol == "marlin":
+            return MarlinSession(
+                self.printer, self.journal, self.link.send, self.config.advanced_ok, reason
+            )
+        if protocol == "ultimaker":
+            return UltimakerSession(
+                self.printer, self.journal, self.link.send, self.config.ultimaker_queue_size
+            )
+        raise ValueError(f"unknown protocol {protocol!r}")

@@ -55,7 +55,7 @@ class ClientOptions:
     long_timeout: float = 300.0  # the same while the printer is known to be busy
     received_timeout: float = 10.0
     max_transmissions: int = 8
-    settle: float = 2.0  # how long to wait for the printer's boot message before sending
+    settle: float = 0.5  # how long to wait for the printer's boot message before sending
 
 
 class UltimakerClient:

@@ -3,6 +3,7 @@ from contextlib import asynccontextmanager
 
 import pytest
 import trio
+import trio.testing
 
 from emulator.journal import Journal
 from emulator.link.memory import MemoryLink
@@ -22,14 +23,15 @@ class RunningPrinter:
 
 
 @asynccontextmanager
-async def running_printer(config: ServerConfig = ServerConfig()):
+async def running_printer(config: ServerConfig = ServerConfig(protocol="ultimaker"), printer=None):
     """A printer on an in-memory link, for the length of the block."""
     link = MemoryLink()
     journal_text = io.StringIO()
-    server = PrinterServer(link, Printer(), Journal(journal_text), config)
+    server = PrinterServer(link, printer or Printer(), Journal(journal_text), config)
     async with trio.open_nursery() as nursery:
         nursery.start_soon(server.run)
-        await trio.sleep(0)
+        # Power-on completes before any host opens the port, as on a real desk.
+        await trio.testing.wait_all_tasks_blocked()
         yield RunningPrinter(link, server, journal_text)
         nursery.cancel_scope.cancel()
 

@@ -12,13 +12,21 @@ from emulator.printer.model import Printer, Reply, Report, Sleep
 async def run_command(
     printer: Printer, line: str, journal: Journal, on_report: Callable[[str], None]
 ) -> Reply:
-    """Execute one command to completion, sleeping whenever the model waits for time."""
+    """Execute one command to completion, sleeping whenever the model waits for time.
+
+    It goes into the journal once it has completed. A kill (M112 through the emergency parser,
+    a thermal fault) can only land while the command waits, and then it never completes.
+    """
+    halted_before = printer.halted
     steps = printer.execute(line, trio.current_time())
     try:
         step = next(steps)
         while True:
             if isinstance(step, Sleep):
                 await trio.sleep_until(step.until)
+                if printer.halted and not halted_before:
+                    steps.close()
+                    return Reply()
             elif isinstance(step, Report):
                 on_report(step.text)
             step = steps.send(trio.current_time())

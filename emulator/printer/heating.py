@@ -1,0 +1,142 @@
+"""Temperature and fan G-codes: M104/M109, M140/M190, M105, M155, M106/M107 and T<n>."""
+
+from emulator.printer.gcode import Command
+from emulator.printer.steps import Reply, Report, Sleep, reply
+
+# Marlin's defaults: a heater must stay within TEMP_WINDOW of target for TEMP_RESIDENCY_TIME.
+TEMP_WINDOW = 1.0
+TEMP_RESIDENCY_TIME = 10.0
+REPORT_INTERVAL = 1.0
+
+
+def temperature_report(printer, now: float, tool: int | None = None) -> str:
+    """Marlin's print_heater_states(): `T:21.00 /0.00 B:21.00 /0.00 @:0 B@:0` (and T0.. for more)."""
+    tool = printer.active_tool if tool is None else tool
+    active = printer.hotends[tool]
+    parts = [f"T:{active.temperature(now):.2f} /{active.target:.2f}"]
+    parts.append(f"B:{printer.bed.temperature(now):.2f} /{printer.bed.target:.2f}")
+    several = len(printer.hotends) > 1
+    if several:
+        parts += [
+            f"T{index}:{heater.temperature(now):.2f} /{heater.target:.2f}"
+            for index, heater in enumerate(printer.hotends)
+        ]
+    parts.append(f"@:{active.power(now)} B@:{printer.bed.power(now)}")
+    if several:
+        parts += [f"@{index}:{heater.power(now)}" for index, heater in enumerate(printer.hotends)]
+    return " ".join(parts)
+
+
+def _target_tool(printer, command: Command) -> int | Reply:
+    tool = command.value("T")
+    tool = printer.active_tool if tool is None else int(tool)
+    if 0 <= tool < len(printer.hotends):
+        return tool
+    return reply(f"echo:{command.code} Invalid extruder {tool}")
+
+
+def set_hotend(printer, command: Command, now: float):
+    tool = _target_tool(printer, command)
+    if isinstance(tool, Reply):
+        return tool
+    if command.has("S"):
+        printer.hotends[tool].set_target(now, command.value("S", 0.0))
+    return reply()
+
+
+def set_bed(printer, command: Command, now: float):
+    if command.has("S"):
+        printer.bed.set_target(now, command.value("S", 0.0))
+    return reply()
+
+
+def wait_hotend(printer, command: Command, now: float):
+    tool = _target_tool(printer, command)
+    if isinstance(tool, Reply):
+        return tool
+    heater = printer.hotends[tool]
+    yield from _set_and_wait(printer, heater, command, now, tool)
+    return reply()
+
+
+def wait_bed(printer, command: Command, now: float):
+    yield from _set_and_wait(printer, printer.bed, command, now, None)
+    return reply()
+
+
+def _set_and_wait(printer, heater, command: Command, now: float, tool: int | None):
+    """M109/M190: S waits only to heat up, R also waits to cool down; M108 ends the wait."""
+    if not (command.has("S") or command.has("R")):
+        return now
+    heater.set_target(now, command.value("S", command.value("R", 0.0)))
+    cooling_allowed = command.has("R") and not command.has("S")
+    if heater.target == 0.0 or (heater.temperature(now) >= heater.target and not cooling_allowed):
+        return now
+    printer.heating_cancelled = False
+    # Compared against stored end times: `now - start >= span` can round short and never hold.
+    residency_end = None
+    next_report = now
+    while not printer.heating_cancelled and not printer.halted:
+        if residency_end is None and abs(heater.temperature(now) - heater.target) <= TEMP_WINDOW:
+            residency_end = now + TEMP_RESIDENCY_TIME
+        if residency_end is not None and now >= residency_end:
+            break
+        if now >= next_report:
+            remaining = "?" if residency_end is None else str(int(residency_end - now))
+            yield Report(f" {temperature_report(printer, now, tool)} W:{remaining}")
+            next_report = now + REPORT_INTERVAL
+        if residency_end is None:
+            wake = min(next_report, max(heater.reached_at(now), now + 0.01))
+        else:
+            wake = min(next_report, residency_end)
+        now = yield Sleep(wake)
+    return now
+
+
+def report_temperatures(printer, command: Command, now: float):
+    tool = _target_tool(printer, command)
+    if isinstance(tool, Reply):
+        return tool
+    return Reply(ok_suffix=temperature_report(printer, now, tool))
+
+
+def auto_report_temperatures(printer, command: Command, now: float):
+    printer.auto_reports.temperature = max(0.0, min(60.0, command.value("S", 0.0)))
+    return reply()
+
+
+def set_fan(printer, command: Command, now: float):
+    fan = int(command.value("P", 0.0))
+    if 0 <= fan < len(printer.fans):
+        speed = 0.0 if command.code == "M107" else command.value("S", 255.0)
+        printer.fans[fan] = int(max(0.0, min(255.0, speed)))
+    return reply()
+
+
+def cancel_heating(printer, command: Command, now: float):
+    # The emergency parser already acted on M108 as it arrived; the queued copy does nothing.
+    return reply()
+
+
+def select_tool(printer, command: Command, now: float):
+    tool = int(command.code[1:]) if command.code[1:].isdigit() else -1
+    if not 0 <= tool < len(printer.hotends):
+        return reply(f"echo:T{tool} Invalid extruder")
+    if len(printer.hotends) == 1:
+        return reply()
+    printer.active_tool = tool
+    return reply(f"echo:Active Extruder: {tool}")
+
+
+HANDLERS = {
+    "M104": set_hotend,
+    "M105": report_temperatures,
+    "M106": set_fan,
+    "M107": set_fan,
+    "M108": cancel_heating,
+    "M109": wait_hotend,
+    "M140": set_bed,
+    "M155": auto_report_temperatures,
+    "M190": wait_bed,
+    **{f"T{n}": select_tool for n in range(10)},
+}

@@ -1,0 +1,246 @@
+"""The SD card, backed by a directory: M20-M30, M524, with the messages Marlin prints.
+
+Files are shown under FAT 8.3 names (`TEST~1.GCO`) as Marlin's SdFat does, and with their long
+names where EXTENDED_M20 asks for them. M23 accepts either.
+"""
+
+import re
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+from emulator.printer.gcode import Command
+from emulator.printer.steps import reply
+from wire.gcode import strip_comment
+
+_SHORT_OK = re.compile(r"[A-Z0-9_$%'\-@~`!(){}^#&]+")
+
+
+def _short_names(names: list[str]) -> dict[str, str]:
+    """Long name -> 8.3 name, with ~N tails where a name does not fit, unique per directory."""
+    result, taken = {}, set()
+    for name in sorted(names):
+        base, dot, ext = name.rpartition(".") if "." in name else (name, "", "")
+        upper_base, upper_ext = base.upper(), ext.upper()
+        if len(base) <= 8 and len(ext) <= 3 and _SHORT_OK.fullmatch(upper_base or "?") and (
+            not ext or _SHORT_OK.fullmatch(upper_ext)
+        ) and upper_base + dot + upper_ext not in taken:
+            short = upper_base + dot + upper_ext
+        else:
+            stem = re.sub(r"[^A-Z0-9_]", "", upper_base)[:6] or "FILE"
+            tail = re.sub(r"[^A-Z0-9_]", "", upper_ext)[:3]
+            number = 1
+            while (short := f"{stem}~{number}" + (f".{tail}" if tail else "")) in taken:
+                number += 1
+        taken.add(short)
+        result[name] = short
+    return result
+
+
+@dataclass
+class OpenFile:
+    path: Path
+    short: str
+    data: bytes
+    position: int = 0
+
+
+class SdCard:
+    def __init__(self, root: Path | None) -> None:
+        self.root = root
+        self.reset()
+
+    def reset(self) -> None:
+        self.mounted = self.root is not None and self.root.is_dir()
+        self.selected: OpenFile | None = None
+        self.printing = False
+        self.saving: Path | None = None
+        self.finished = False
+
+    # -- the directory -----------------------------------------------------------------
+    def entries(self) -> list[tuple[str, str, Path]]:
+        """(8.3 path, long path, file) for every file, depth first, as M20 lists them."""
+        found = []
+
+        def walk(directory: Path, short_prefix: str, long_prefix: str) -> None:
+            children = sorted(p for p in directory.iterdir() if not p.name.startswith("."))
+            shorts = _short_names([p.name for p in children])
+            for child in children:
+                short, long = short_prefix + shorts[child.name], long_prefix + child.name
+                if child.is_dir():
+                    walk(child, short + "/", long + "/")
+                elif child.is_file():
+                    found.append((short, long, child))
+
+        if self.mounted:
+            walk(self.root, "", "")
+        return found
+
+    def find(self, name: str) -> tuple[str, Path] | None:
+        wanted = name.strip().lstrip("/")
+        for short, long, path in self.entries():
+            if wanted in (short, long) or wanted.upper() == short:
+                return short, path
+        return None
+
+    # -- printing ----------------------------------------------------------------------
+    def next_line(self) -> str | None:
+        """The next command of the file being printed, or None at its end."""
+        selected = self.selected
+        while selected is not None and selected.position < len(selected.data):
+            end = selected.data.find(b"\n", selected.position)
+            end = len(selected.data) if end < 0 else end + 1
+            raw = selected.data[selected.position:end]
+            selected.position = end
+            command = strip_comment(raw.decode("ascii", "replace"))
+            if command:
+                return command
+        return None
+
+    def write_line(self, text: str) -> None:
+        with open(self.saving, "a", encoding="ascii", errors="replace", newline="") as target:
+            target.write(text + "\r\n")
+
+    def status(self) -> str:
+        if self.selected is not None and self.printing:
+            return f"SD printing byte {self.selected.position}/{len(self.selected.data)}"
+        return "Not SD printing"
+
+
+def _no_media(printer) -> bool:
+    return not printer.sd.mounted
+
+
+def list_files(printer, command: Command, now: float):
+    if _no_media(printer):
+        return reply("echo:No media")
+    with_long = "L" in command.string_argument.upper()
+    with_time = "T" in command.string_argument.upper()
+    lines = ["Begin file list"]
+    for short, long, path in printer.sd.entries():
+        line = f"{short} {path.stat().st_size}"
+        if with_time:
+            stamp = time.localtime(path.stat().st_mtime)
+            fat_date = ((stamp.tm_year - 1980) << 9) | (stamp.tm_mon << 5) | stamp.tm_mday
+            fat_time = (stamp.tm_hour << 11) | (stamp.tm_min << 5) | (stamp.tm_sec // 2)
+            line += f" 0x{fat_date:04X}{fat_time:04X}"
+        if with_long:
+            line += f" {long}"
+        lines.append(line)
+    lines.append("End file list")
+    return reply(*lines)
+
+
+def mount(printer, command: Command, now: float):
+    printer.sd.reset()
+    return reply("echo:SD card ok" if printer.sd.mounted else "echo:SD init fail")
+
+
+def release(printer, command: Command, now: float):
+    printer.sd.reset()
+    printer.sd.mounted = False
+    return reply("echo:SD card released")
+
+
+def select_file(printer, command: Command, now: float):
+    name = command.string_argument
+    if _no_media(printer):
+        return reply("echo:No media")
+    found = printer.sd.find(name)
+    if found is None:
+        return reply(f"open failed, File: {name}.")
+    short, path = found
+    printer.sd.selected = OpenFile(path, short, path.read_bytes())
+    printer.sd.printing = False
+    return reply(f"File opened: {short} Size: {len(printer.sd.selected.data)}", "File selected")
+
+
+def start_print(printer, command: Command, now: float):
+    if printer.sd.selected is not None:
+        printer.sd.printing = True
+        printer.sd.finished = False
+    return reply()
+
+
+def pause_print(printer, command: Command, now: float):
+    printer.sd.printing = False
+    return reply()
+
+
+def set_position(printer, command: Command, now: float):
+    if printer.sd.selected is not None:
+        printer.sd.selected.position = max(0, int(command.value("S", 0.0)))
+    return reply()
+
+
+def report_status(printer, command: Command, now: float):
+    if command.has("S"):
+        printer.auto_reports.sd_status = max(0.0, command.value("S", 0.0))
+        return reply()
+    if command.has("C"):
+        selected = printer.sd.selected
+        if selected is None:
+            return reply("Current file: (no file)")
+        return reply(f"Current file: {selected.short} {selected.path.name}")
+    return reply(printer.sd.status())
+
+
+def begin_write(printer, command: Command, now: float):
+    name = command.string_argument
+    if _no_media(printer):
+        return reply("echo:No media")
+    found = printer.sd.find(name)
+    root = printer.sd.root.resolve()
+    path = found[1] if found else (root / name.strip().lstrip("/")).resolve()
+    if root not in path.parents:  # a name like ../x must not reach outside the card
+        return reply(f"open failed, File: {name}.")
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_bytes(b"")
+    except OSError:
+        return reply(f"open failed, File: {name}.")
+    printer.sd.saving = path
+    return reply(f"Writing to file: {found[0] if found else name.strip()}")
+
+
+def end_write(printer, command: Command, now: float):
+    if printer.sd.saving is None:
+        return reply()
+    printer.sd.saving = None
+    return reply("Done saving file.")
+
+
+def delete_file(printer, command: Command, now: float):
+    name = command.string_argument
+    found = None if _no_media(printer) else printer.sd.find(name)
+    if found is None:
+        return reply(f"Deletion failed, File: {name}.")
+    short, path = found
+    if printer.sd.selected is not None and printer.sd.selected.path == path:
+        printer.sd.selected = None
+        printer.sd.printing = False
+    path.unlink()
+    return reply(f"File deleted:{short}")
+
+
+def abort_print(printer, command: Command, now: float):
+    if printer.sd.printing or printer.sd.selected is not None:
+        printer.sd.printing = False
+        printer.sd.selected = None
+    return reply()
+
+
+HANDLERS = {
+    "M20": list_files,
+    "M21": mount,
+    "M22": release,
+    "M23": select_file,
+    "M24": start_print,
+    "M25": pause_print,
+    "M26": set_position,
+    "M27": report_status,
+    "M28": begin_write,
+    "M29": end_write,
+    "M30": delete_file,
+    "M524": abort_print,
+}

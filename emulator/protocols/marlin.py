@@ -1,0 +1,229 @@
+"""The printer side of Marlin's ASCII line protocol, as a sans-IO state machine.
+
+Mirrors Marlin 2.1's GCodeQueue::get_serial_commands(): characters are read into a line buffer
+(comments dropped as they arrive, at most MAX_CMD_SIZE), a line numbered N must be last_N + 1 and
+carry a correct XOR checksum, and a resend of the last line or the one before is dropped
+silently. Lines are read only while the command queue has room, as the firmware stops reading
+its RX buffer when the queue is full. Marlin's emergency parser sees M108/M112/M410/M876 as
+soon as their line arrives, however full the queue.
+"""
+
+import re
+from dataclasses import dataclass
+from enum import Enum, auto
+
+MAX_CMD_SIZE = 96
+BUFSIZE = 4
+
+
+class InputState(Enum):
+    NORMAL = auto()
+    EOL_COMMENT = auto()  # after `;` or an overlong line: skip to the end of the line
+    PAREN_COMMENT = auto()
+
+
+class LineError(Enum):
+    LINE_NUMBER = "Line Number is not Last Line Number+1, Last Line: "
+    CHECKSUM = "checksum mismatch, Last Line: "
+    NO_CHECKSUM = "No Checksum with line number, Last Line: "
+
+
+# Events out.
+@dataclass(frozen=True)
+class LineReceived:
+    text: str  # the command without line number and checksum
+    line_number: int | None
+
+
+@dataclass(frozen=True)
+class LineRejected:
+    error: LineError
+    resend: int
+
+
+@dataclass(frozen=True)
+class EmergencyCommand:
+    text: str  # "M108", "M112", "M410" or "M876 S<n>"
+
+
+# Events in.
+@dataclass(frozen=True)
+class Ok:
+    """A queued command finished: release its queue slot and say `ok`."""
+
+    line_number: int | None = None
+    suffix: str = ""  # text on the ok line itself (M105's temperatures)
+    planner_free: int = 15
+
+
+@dataclass(frozen=True)
+class Output:
+    text: str
+
+
+_LEADING_INT = re.compile(r"\s*([-+]?\d+)")
+_EMERGENCY = re.compile(r"(?:N-?\d+\s*)?(M(?:108|112|410)(?!\d)|M876\s*S\d+)")
+
+
+def _strtol(text: str) -> int:
+    """C's strtol(text, NULL, 10): the leading integer, 0 if there is none."""
+    match = _LEADING_INT.match(text)
+    return int(match[1]) if match else 0
+
+
+def xor_checksum(text: str) -> int:
+    checksum = 0
+    for byte in text.encode("latin-1", "replace"):
+        checksum ^= byte
+    return checksum
+
+
+def strip_line_number(line: str) -> str:
+    """What GCodeParser::parse sees: the command without `N<n>` before it or `*<cs>` after it."""
+    if line.startswith("N"):
+        line = re.sub(r"^N-?\d*\s*", "", line)
+    return line.split("*", 1)[0].strip()
+
+
+class MarlinProtocol:
+    def __init__(self, advanced_ok: bool = False, queue_size: int = BUFSIZE) -> None:
+        self.advanced_ok = advanced_ok
+        self.queue_size = queue_size
+        self.last_n = 0
+        self.saving_to_sd = False  # while M28 writes a file, every line must be numbered
+        self._queued = 0
+        self._input = bytearray()
+        self._line = bytearray()
+        self._state = InputState.NORMAL
+        self._escaped = False
+        self._output = bytearray()
+        self._emergency_line = bytearray()
+        self._emergencies: list[EmergencyCommand] = []
+
+    # -- receiving ---------------------------------------------------------------------
+    def receive_data(self, data: bytes) -> None:
+        self._input += data
+        self._scan_for_emergencies(data)
+
+    def _scan_for_emergencies(self, data: bytes) -> None:
+        for byte in data:
+            if byte in b"\r\n":
+                line = self._emergency_line.decode("ascii", "replace").strip()
+                match = _EMERGENCY.match(line)
+                if match:
+                    self._emergencies.append(EmergencyCommand(re.sub(r"\s+", " ", match[1])))
+                self._emergency_line.clear()
+            elif len(self._emergency_line) < MAX_CMD_SIZE:
+                self._emergency_line.append(byte)
+
+    @property
+    def queue_free(self) -> int:
+        return self.queue_size - self._queued
+
+    def next_event(self) -> LineReceived | LineRejected | EmergencyCommand | None:
+        if self._emergencies:
+            return self._emergencies.pop(0)
+        position = 0
+        try:
+            while position < len(self._input) and self._queued < self.queue_size:
+                byte = self._input[position]
+                position += 1
+                if byte in b"\r\n":
+                    event = self._line_done()
+                    if isinstance(event, LineRejected):
+                        position = len(self._input)  # the firmware reads its RX buffer empty
+                    if event is not None:
+                        return event
+                else:
+                    self._stream_char(byte)
+            return None
+        finally:
+            del self._input[:position]
+
+    def _stream_char(self, byte: int) -> None:
+        """process_stream_char(): comments and escapes, as the firmware strips them."""
+        if self._state is InputState.EOL_COMMENT:
+            return
+        if self._state is InputState.PAREN_COMMENT:
+            if byte == ord(")"):
+                self._state = InputState.NORMAL
+            return
+        if self._escaped:
+            self._escaped = False
+        elif byte == ord("\\"):
+            self._escaped = True
+            return
+        elif byte == ord(";"):
+            self._state = InputState.EOL_COMMENT
+            return
+        elif byte == ord("("):
+            self._state = InputState.PAREN_COMMENT
+            return
+        if byte == 0x08:  # backspace, for people typing in a terminal
+            if self._line:
+                self._line.pop()
+            return
+        self._line.append(byte)
+        if len(self._line) >= MAX_CMD_SIZE - 1:
+            self._state = InputState.EOL_COMMENT
+
+    def _line_done(self) -> LineReceived | LineRejected | None:
+        raw = self._line.decode("ascii", "replace")
+        self._line.clear()
+        self._state = InputState.NORMAL
+        self._escaped = False
+        command = raw.lstrip(" ")
+        if not command:
+            return None
+        line_number = None
+        if command.startswith("N"):
+            is_m110 = "M110" in command
+            number_at = command.find("N", 4) if is_m110 else -1
+            number = _strtol(command[number_at + 1:] if number_at >= 0 else command[1:])
+            if number != self.last_n + 1 and not is_m110:
+                if self.last_n - 1 <= number <= self.last_n:
+                    return None  # a resend crossed our Resend request: already have it
+                return self._line_error(LineError.LINE_NUMBER)
+            star = command.rfind("*")
+            if star < 0:
+                return self._line_error(LineError.NO_CHECKSUM)
+            if _strtol(command[star + 1:]) != xor_checksum(command[:star]):
+                return self._line_error(LineError.CHECKSUM)
+            self.last_n = line_number = number
+        elif self.saving_to_sd and not re.match(r"M29(?!\d)", command):
+            return self._line_error(LineError.NO_CHECKSUM)
+        text = strip_line_number(command)
+        if not text:
+            return None
+        self._queued += 1
+        return LineReceived(text, line_number)
+
+    def _line_error(self, error: LineError) -> LineRejected:
+        # Error, Resend and ok go out back to back: printcore mistakes them for two
+        # permissions to send if they arrive in separate reads.
+        resend = self.last_n + 1
+        self._output += f"Error:{error.value}{self.last_n}\nResend: {resend}\nok\n".encode("ascii")
+        return LineRejected(error, resend)
+
+    # -- sending -----------------------------------------------------------------------
+    def send(self, event: Ok | Output) -> bytes:
+        if isinstance(event, Ok):
+            self._queued = max(0, self._queued - 1)
+            if event.suffix:
+                self._output += f"ok {event.suffix}\n".encode("ascii", "replace")
+            elif self.advanced_ok:
+                number = f" N{event.line_number}" if event.line_number is not None else ""
+                # The slot this command held is free again by the time `ok` goes out.
+                self._output += f"ok{number} P{event.planner_free} B{self.queue_free}\n".encode()
+            else:
+                self._output += b"ok\n"
+        elif isinstance(event, Output):
+            self._output += f"{event.text}\n".encode("ascii", "replace")
+        else:
+            raise TypeError(f"cannot send {event!r}")
+        return self.data_to_send()
+
+    def data_to_send(self) -> bytes:
+        data = bytes(self._output)
+        self._output.clear()
+        return data

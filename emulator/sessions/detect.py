@@ -1,0 +1,60 @@
+"""`--protocol auto`: the first decisive bytes of a connection choose the protocol."""
+
+from collections.abc import Callable
+from enum import Enum
+
+import trio
+
+PRINTABLE = frozenset(range(0x20, 0x7F)) | {0x0A, 0x0D}
+
+
+class Detected(Enum):
+    ULTIMAKER = "ultimaker"
+    MARLIN = "marlin"
+
+
+def classify(byte: int) -> Detected | None:
+    """What a connection's first bytes say about the host; None for noise that says nothing."""
+    if byte == 0xFF:
+        return Detected.ULTIMAKER
+    if byte in PRINTABLE:
+        return Detected.MARLIN
+    return None
+
+
+class DetectingSession:
+    """Holds a connection's first bytes until they name a protocol, then hands over.
+
+    The greeting waits too: a printer that does not yet know its protocol cannot say hello in it.
+    """
+
+    def __init__(self, make_session: Callable[[Detected], object]) -> None:
+        self._make_session = make_session
+        self._session = None
+        self._detected = trio.Event()
+
+    @property
+    def protocol(self) -> Detected | None:
+        return self._protocol if self._session is not None else None
+
+    def boot(self) -> None:
+        pass
+
+    def feed(self, data: bytes) -> None:
+        if self._session is None:
+            for index, byte in enumerate(data):
+                protocol = classify(byte)
+                if protocol is not None:
+                    self._protocol = protocol
+                    self._session = self._make_session(protocol)
+                    self._session.boot()
+                    self._detected.set()
+                    data = data[index:]
+                    break
+            else:
+                return
+        self._session.feed(data)
+
+    async def run(self) -> None:
+        await self._detected.wait()
+        await self._session.run()

@@ -1,0 +1,200 @@
+"""One boot of a printer speaking Marlin's ASCII protocol."""
+
+import math
+import re
+from collections.abc import Callable
+
+import trio
+
+from emulator.journal import Journal
+from emulator.printer.gcode import parse
+from emulator.printer.model import SELF_REPORTING, Printer
+from emulator.protocols.marlin import EmergencyCommand, LineReceived, MarlinProtocol, Ok, Output
+from emulator.sessions.driver import run_command
+
+BUSY_INTERVAL = 2.0  # HOST_KEEPALIVE default; M113 changes it
+
+
+def boot_lines(printer: Printer, reason: str) -> list[str]:
+    config = printer.config
+    lines = [
+        "start",
+        f"echo:{reason}",
+        f"Marlin {config.firmware_version}",
+        f"echo: Last Updated: {config.firmware_date.split()[0]} | Author: (fake-marlin)",
+        f"echo: Compiled: {config.firmware_date.split()[0]}",
+        "echo: Free Memory: 4515  PlannerBufferBytes: 1232",
+        "echo:V86 stored settings retrieved (621 bytes; crc 47016)",
+    ]
+    if printer.sd.mounted:
+        lines.append("echo:SD card ok")
+    return lines
+
+
+class MarlinSession:
+    def __init__(
+        self,
+        printer: Printer,
+        journal: Journal,
+        send: Callable[[bytes], None],
+        advanced_ok: bool = False,
+        reset_reason: str = "PowerUp",
+    ) -> None:
+        self.printer = printer
+        self.journal = journal
+        self._send = send
+        self.reset_reason = reset_reason
+        self.protocol = MarlinProtocol(advanced_ok)
+        self._queue_in, self._queue_out = trio.open_memory_channel[LineReceived](math.inf)
+        self.busy_interval = BUSY_INTERVAL
+        self._busy = False
+        self._busy_changed = trio.Event()
+        self._reports_changed = trio.Event()
+
+    def boot(self) -> None:
+        for line in boot_lines(self.printer, self.reset_reason):
+            self._say(line)
+
+    def _say(self, text: str) -> None:
+        self._send(self.protocol.send(Output(text)))
+
+    def feed(self, data: bytes) -> None:
+        if self.printer.halted:
+            return  # a killed printer reads nothing until it is reset
+        self.protocol.receive_data(data)
+        while (event := self.protocol.next_event()) is not None:
+            if isinstance(event, LineReceived):
+                self._queue_in.send_nowait(event)
+            elif isinstance(event, EmergencyCommand):
+                for line in self.printer.emergency(event.text, trio.current_time()):
+                    self._say(line)
+                if self.printer.halted:
+                    break
+        self._send(self.protocol.data_to_send())
+        self._wake()
+
+    def _wake(self) -> None:
+        self._busy_changed.set()
+        self._reports_changed.set()
+
+    async def run(self) -> None:
+        async with trio.open_nursery() as nursery:
+            nursery.start_soon(self._execute_commands)
+            nursery.start_soon(self._keep_host_alive)
+            nursery.start_soon(self._send_auto_reports)
+
+    # -- executing ---------------------------------------------------------------------
+    async def _execute_commands(self) -> None:
+        sd = self.printer.sd
+        while not self.printer.halted:
+            if sd.printing:
+                try:
+                    received = self._queue_out.receive_nowait()
+                except trio.WouldBlock:
+                    await self._run_from_sd()
+                    continue
+            else:
+                received = await self._queue_out.receive()
+            await self._run_received(received)
+        await trio.sleep_forever()
+
+    async def _run_from_sd(self) -> None:
+        line = self.printer.sd.next_line()
+        if line is None:
+            self.printer.sd.printing = False
+            self.printer.sd.finished = True
+            self._say("Done printing file")
+            return
+        await self._run(line)
+
+    async def _run_received(self, received: LineReceived) -> None:
+        sd = self.printer.sd
+        if sd.saving is not None and not re.match(r"M29(?!\d)", received.text):
+            sd.write_line(received.text)  # M28 stores lines instead of running them
+            self._send(self.protocol.send(Ok(received.line_number, planner_free=self._room())))
+            return
+        reply = await self._run(received.text)
+        if self.printer.halted:
+            return
+        self._protocol_effects(received.text)
+        for line in reply.lines:
+            self._say(line)
+        self._send(
+            self.protocol.send(Ok(received.line_number, reply.ok_suffix, planner_free=self._room()))
+        )
+        self.protocol.saving_to_sd = sd.saving is not None
+        self._reports_changed.set()
+
+    async def _run(self, text: str):
+        code = parse(text).code
+        self._set_busy(code not in SELF_REPORTING)
+        try:
+            reply = await run_command(self.printer, text, self.journal, self._say)
+        finally:
+            self._set_busy(False)
+        if self.printer.halted:
+            for line in reply.lines:
+                self._say(line)
+        return reply
+
+    def _protocol_effects(self, text: str) -> None:
+        """M110, M113 and M999 act on the protocol, not on the printer."""
+        command = parse(text)
+        if command.code == "M110" and command.value("N") is not None:
+            self.protocol.last_n = int(command.value("N"))
+        elif command.code == "M113" and command.has("S"):
+            self.busy_interval = max(0.0, min(60.0, command.value("S", 0.0)))
+        elif command.code == "M113":
+            self._say(f"echo:M113 S{self.busy_interval:g}")
+        elif command.code == "M999":
+            self._say(f"Resend: {self.protocol.last_n + 1}")
+
+    def _room(self) -> int:
+        return self.printer.room(trio.current_time())
+
+    # -- what the printer says on its own ----------------------------------------------
+    def _set_busy(self, busy: bool) -> None:
+        self._busy = busy
+        self._busy_changed.set()
+
+    async def _keep_host_alive(self) -> None:
+        """`echo:busy: processing` while a command holds the queue, as HOST_KEEPALIVE does."""
+        next_signal = -math.inf
+        while True:
+            changed = self._busy_changed = trio.Event()
+            deadline = math.inf
+            if self._busy and self.busy_interval > 0 and not self.printer.halted:
+                now = trio.current_time()
+                if now >= next_signal:
+                    self._say("echo:busy: processing")
+                    next_signal = now + self.busy_interval
+                deadline = next_signal
+            with trio.move_on_at(deadline):
+                await changed.wait()
+
+    async def _send_auto_reports(self) -> None:
+        """M155 temperatures, M154 positions and M27 S SD status, each at its interval."""
+        last = {"temperature": -math.inf, "position": -math.inf, "sd_status": -math.inf}
+        while True:
+            changed = self._reports_changed = trio.Event()
+            now = trio.current_time()
+            deadline = math.inf
+            if not self.printer.halted:
+                for kind in last:
+                    interval = getattr(self.printer.auto_reports, kind)
+                    if interval <= 0:
+                        continue
+                    if now >= last[kind] + interval:
+                        self._auto_report(kind, now)
+                        last[kind] = now
+                    deadline = min(deadline, last[kind] + interval)
+            with trio.move_on_at(deadline):
+                await changed.wait()
+
+    def _auto_report(self, kind: str, now: float) -> None:
+        if kind == "temperature":
+            self._say(" " + self.printer.temperature_report(now))
+        elif kind == "position":
+            self._say(self.printer.position_report(now).split(" Count")[0])
+        elif self.printer.sd.selected is not None:
+            self._say(self.printer.sd.status())
