@@ -78,5 +78,6 @@ async def test_sd_lines(tmp_path, autojump_clock):
         assert opened["name"] == "PART~1.GCO" and int(opened["size"]) == size
         await terminal.command("M24")
         await terminal.quiet_for(0.5)  # into the dwell
-        progress = SD_PROGRESS.search((await terminal.command("M27"))[0])
+        (status,) = [line for line in await terminal.command("M27") if line.startswith("SD printing")]
+        progress = SD_PROGRESS.search(status)
         assert 0 < int(progress["current"]) < int(progress["total"]) == size
