@@ -11,6 +11,7 @@ from pathlib import Path
 import trio
 
 from emulator.clock import ScaledClock
+from emulator.faults import FaultConfig, parse_fault
 from emulator.journal import Journal
 from emulator.link.pty import PtyLink
 from emulator.printer.model import DEFAULT_CAPABILITIES, Printer, PrinterConfig
@@ -78,6 +79,12 @@ def build_parser() -> argparse.ArgumentParser:
         help="set one M115 capability (repeatable), e.g. AUTOREPORT_TEMP=0",
     )
     parser.add_argument(
+        "--fault", action="append", default=[], metavar="DIRECTION:KIND=RATE",
+        help="damage the line, e.g. to-printer:bit-errors=1e-4 or to-host:drop-bytes=0.001 "
+        "(repeatable)",
+    )
+    parser.add_argument("--seed", type=int, default=0, help="seed for random faults (default 0)")
+    parser.add_argument(
         "--boot-delay", type=_non_negative_float, default=0.0, metavar="SECONDS",
         help="simulated time a reset takes before the printer answers (default 0)",
     )
@@ -103,10 +110,11 @@ class _Symlink:
             os.unlink(self.path)
 
 
-async def _serve_until_signalled(server: PrinterServer) -> None:
+async def _serve_until_signalled(server: PrinterServer, path: str) -> None:
     with trio.open_signal_receiver(signal.SIGINT, signal.SIGTERM, signal.SIGHUP) as signals:
         async with trio.open_nursery() as nursery:
-            nursery.start_soon(server.run)
+            await nursery.start(server.run)
+            print(path, flush=True)
             async for _ in signals:
                 nursery.cancel_scope.cancel()
                 break
@@ -117,7 +125,14 @@ def _interrupt(signum, frame):
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    faults = FaultConfig(seed=args.seed)
+    for spec in args.fault:
+        try:
+            faults = parse_fault(spec, faults)
+        except ValueError as error:
+            parser.error(f"argument --fault: {error}")
     # Until trio takes over the signals (and in case one lands before it does), a SIGTERM or
     # SIGHUP must unwind like Ctrl-C so that the symlink is removed.
     signal.signal(signal.SIGTERM, _interrupt)
@@ -136,7 +151,6 @@ def main(argv: list[str] | None = None) -> int:
         link.close()
         return 2
     try:
-        print(link.path, flush=True)
         with contextlib.ExitStack() as cleanup:
             sd_dir = Path(args.sd_dir) if args.sd_dir else Path(
                 cleanup.enter_context(tempfile.TemporaryDirectory(prefix="fake-marlin-sd-"))
@@ -147,10 +161,13 @@ def main(argv: list[str] | None = None) -> int:
                 extruders=args.extruders, sd_dir=sd_dir, capabilities=tuple(capabilities.items())
             )
             server_config = ServerConfig(
-                protocol=args.protocol, boot_delay=args.boot_delay, advanced_ok=args.advanced_ok
+                protocol=args.protocol,
+                boot_delay=args.boot_delay,
+                advanced_ok=args.advanced_ok,
+                faults=faults,
             )
             server = PrinterServer(link, Printer(config), journal, server_config)
-            trio.run(_serve_until_signalled, server, clock=ScaledClock(args.speed))
+            trio.run(_serve_until_signalled, server, link.path, clock=ScaledClock(args.speed))
     except KeyboardInterrupt:
         pass
     finally:

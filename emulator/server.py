@@ -4,6 +4,7 @@ from dataclasses import dataclass
 
 import trio
 
+from emulator.faults import FaultConfig, FaultLayer
 from emulator.journal import Journal
 from emulator.link.pty import HostOpened, PtyLink
 from emulator.printer.model import Printer
@@ -20,6 +21,7 @@ class ServerConfig:
     boot_delay: float = 0.0  # simulated seconds a reset takes before the printer answers
     ultimaker_queue_size: int = 8
     advanced_ok: bool = False
+    faults: FaultConfig = FaultConfig()
 
 
 class PrinterServer:
@@ -29,13 +31,18 @@ class PrinterServer:
         self.journal = journal
         self.config = config
         self.boots = 0
+        self.faults = FaultLayer(config.faults)
         self._session = None
         self._session_scope = trio.CancelScope()
 
-    async def run(self) -> None:
+    async def run(self, task_status=trio.TASK_STATUS_IGNORED) -> None:
+        """Power on, then serve; started (for nursery.start) once the power-on greeting is out,
+        so a host that opens the port as soon as it hears of it sees one boot, not two."""
         async with trio.open_nursery() as nursery:
             nursery.start_soon(self.link.run_writer)
             await nursery.start(self._boot)
+            await self.link.drain()
+            task_status.started()
             while True:
                 item = await self.link.receive()
                 if isinstance(item, HostOpened):
@@ -43,7 +50,7 @@ class PrinterServer:
                     self.link.discard_output()
                     await nursery.start(self._boot)
                 elif self._session is not None:
-                    self._session.feed(item)
+                    self._session.feed(self.faults.to_printer(item))
                 # Bytes that arrive while the printer is still booting are lost, as on a real board.
 
     async def _boot(self, task_status=trio.TASK_STATUS_IGNORED) -> None:
@@ -68,10 +75,13 @@ class PrinterServer:
             return DetectingSession(lambda detected: self._make_session(detected, reason))
         if protocol == "marlin":
             return MarlinSession(
-                self.printer, self.journal, self.link.send, self.config.advanced_ok, reason
+                self.printer, self.journal, self._send, self.config.advanced_ok, reason
             )
         if protocol == "ultimaker":
             return UltimakerSession(
-                self.printer, self.journal, self.link.send, self.config.ultimaker_queue_size
+                self.printer, self.journal, self._send, self.config.ultimaker_queue_size
             )
         raise ValueError(f"unknown protocol {protocol!r}")
+
+    def _send(self, data: bytes) -> None:
+        self.link.send(self.faults.to_host(data))

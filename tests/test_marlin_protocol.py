@@ -106,6 +106,13 @@ def test_comments_escapes_and_backspace_as_the_firmware_strips_them():
     assert [e.text for e in events] == ["G1 X10", "G1  Y5", "M117 a;b", "G1 X9"]
 
 
+def test_the_checksum_covers_a_paren_comment_as_the_host_sent_it():
+    protocol = MarlinProtocol()
+    wire = numbered(1, "G1 Z0.3 F600 (first layer)")
+    assert feed(protocol, wire) == [LineReceived("G1 Z0.3 F600", 1)]
+    assert protocol.data_to_send() == b""
+
+
 def test_an_overlong_line_is_cut_at_max_cmd_size():
     protocol = MarlinProtocol()
     (event,) = feed(protocol, b"M117 " + b"x" * 200 + b"\n")

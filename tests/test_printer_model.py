@@ -103,3 +103,64 @@ def test_reset_stops_motion_and_heaters_but_not_physics():
     assert printer.room(30.0) == 15 and printer.motion.position == [0.0] * 4
     reply, _ = run(printer, "M105", 30.0)
     assert reply.ok_suffix.startswith("T:1") and "/0.00" in reply.ok_suffix
+
+
+def test_arcs_end_where_asked_and_take_their_length_in_time():
+    printer = Printer()
+    run(printer, "G1 X10 Y0 F6000", 0.0)
+    _, t0 = run(printer, "M400", 0.0)
+    run(printer, "G2 X-10 Y0 I-10 J0 F600", t0)  # a half circle of radius 10: 31.4 mm at 10 mm/s
+    _, done = run(printer, "M400", t0)
+    assert printer.motion.position[:2] == [-10.0, 0.0]
+    assert 3.1 < done - t0 < 3.3
+    run(printer, "G3 X10 Y0 R10", done)
+    assert printer.motion.position[:2] == [10.0, 0.0]
+
+
+def test_firmware_retraction_moves_filament_but_not_the_coordinates():
+    printer = Printer()
+    run(printer, "M207 S4 F2400", 0.0)
+    run(printer, "G1 E10 F600", 0.0)
+    run(printer, "G10", 0.0)
+    assert printer.motion.position[3] == 10.0 and printer.motion.retracted
+    assert printer.planner.moves(0.0) == 2
+    run(printer, "G10", 0.0)  # already retracted: nothing more
+    assert printer.planner.moves(0.0) == 2
+    run(printer, "G11", 0.0)
+    assert not printer.motion.retracted and printer.planner.moves(0.0) == 3
+
+
+def test_probing_needs_homing_then_reports_three_points():
+    printer = Printer()
+    assert run(printer, "G29", 0.0)[0].lines == ("echo:Home XYZ First",)
+    run(printer, "G28", 0.0)
+    reply, done = run(printer, "G29", 0.0)
+    assert [line.split(" Z:")[0] for line in reply.lines[:3]] == [
+        "Bed X: 20.000 Y: 20.000", "Bed X: 180.000 Y: 20.000", "Bed X: 100.000 Y: 180.000"
+    ]
+    assert done > 5.0
+
+
+def test_fans_clip_to_0_255_and_speed_factor_scales_moves():
+    printer = Printer()
+    run(printer, "M106 S300", 0.0)
+    assert printer.fans[0] == 255
+    run(printer, "M106 S-4", 0.0)
+    assert printer.fans[0] == 0
+    run(printer, "M106", 0.0)
+    assert printer.fans[0] == 255
+    run(printer, "M107", 0.0)
+    assert printer.fans[0] == 0
+    assert run(printer, "M220", 0.0)[0].lines == ("FR:100%",)
+    run(printer, "M220 S200", 0.0)
+    run(printer, "G1 X100 F600", 0.0)
+    _, done = run(printer, "M400", 0.0)
+    assert 5.0 < done < 5.1  # 100 mm at twice 10 mm/s
+
+
+def test_messages_and_debug():
+    printer = Printer()
+    assert run(printer, "M118 Hello there", 0.0)[0].lines == ("Hello there",)
+    assert run(printer, "M118 E1 A1 pause", 0.0)[0].lines == ("echo://pause",)
+    assert run(printer, "M111 S3", 0.0)[0].lines == ("echo:DEBUG:ECHO,INFO",)
+    assert run(printer, "M111 S0", 0.0)[0].lines == ("echo:DEBUG:OFF",)

@@ -8,4 +8,8 @@ _PAREN_COMMENT = re.compile(r"\([^)]*\)")
 
 def strip_comment(line: str) -> str:
     """The command without `;` and `( )` comments or surrounding white space."""
-    return _PAREN_COMMENT.sub("", line.split(";", 1)[0]).strip()
+    return remove_paren_comments(line.split(";", 1)[0]).strip()
+
+
+def remove_paren_comments(text: str) -> str:
+    return _PAREN_COMMENT.sub("", text)

@@ -27,6 +27,9 @@ class MemoryLink:
             self._outbound += data
             self._outbound_ready.set()
 
+    async def drain(self) -> None:
+        await trio.lowlevel.checkpoint()
+
     def discard_output(self) -> None:
         self._outbound.clear()
 

@@ -38,6 +38,7 @@ class PtyLink:
         self.path = os.ttyname(self._slave)
         self._pending = bytearray()
         self._output_ready = trio.Event()
+        self._emptied = trio.Event()
         self.dropped_bytes = 0
 
     async def receive(self) -> bytes | HostOpened:
@@ -67,9 +68,16 @@ class PtyLink:
             self.dropped_bytes += overflow
         self._output_ready.set()
 
+    async def drain(self) -> None:
+        """Wait until what was sent so far has left for the pty (or was given up)."""
+        while self._pending:
+            emptied = self._emptied = trio.Event()
+            await emptied.wait()
+
     def discard_output(self) -> None:
         """Forget unsent output: the host that would have read it is gone."""
         self._pending.clear()
+        self._emptied.set()
 
     async def run_writer(self) -> None:
         while True:
@@ -86,9 +94,11 @@ class PtyLink:
                 if error.errno != errno.EIO:
                     raise
                 print(f"fake-marlin: write to pty failed: {error}", file=sys.stderr)
-                self._pending.clear()
+                self.discard_output()
                 continue
             del self._pending[:written]
+            if not self._pending:
+                self._emptied.set()
 
     def close(self) -> None:
         for fd in (self._master, self._slave):

@@ -12,6 +12,8 @@ import re
 from dataclasses import dataclass
 from enum import Enum, auto
 
+from wire.gcode import remove_paren_comments
+
 MAX_CMD_SIZE = 96
 BUFSIZE = 4
 
@@ -19,7 +21,7 @@ BUFSIZE = 4
 class InputState(Enum):
     NORMAL = auto()
     EOL_COMMENT = auto()  # after `;` or an overlong line: skip to the end of the line
-    PAREN_COMMENT = auto()
+    PAREN_COMMENT = auto()  # inside `( )`: kept for the checksum, but a `;` here is no comment
 
 
 class LineError(Enum):
@@ -141,14 +143,17 @@ class MarlinProtocol:
             del self._input[:position]
 
     def _stream_char(self, byte: int) -> None:
-        """process_stream_char(): comments and escapes, as the firmware strips them."""
+        """process_stream_char(): `;` comments and escapes, as the firmware strips them.
+
+        `( )` comments stay in the line until it is complete: hosts compute the checksum over
+        the line as they send it, comment included (stock Marlin keeps them in the buffer too).
+        """
         if self._state is InputState.EOL_COMMENT:
             return
         if self._state is InputState.PAREN_COMMENT:
             if byte == ord(")"):
                 self._state = InputState.NORMAL
-            return
-        if self._escaped:
+        elif self._escaped:
             self._escaped = False
         elif byte == ord("\\"):
             self._escaped = True
@@ -158,7 +163,6 @@ class MarlinProtocol:
             return
         elif byte == ord("("):
             self._state = InputState.PAREN_COMMENT
-            return
         if byte == 0x08:  # backspace, for people typing in a terminal
             if self._line:
                 self._line.pop()
@@ -192,7 +196,7 @@ class MarlinProtocol:
             self.last_n = line_number = number
         elif self.saving_to_sd and not re.match(r"M29(?!\d)", command):
             return self._line_error(LineError.NO_CHECKSUM)
-        text = strip_line_number(command)
+        text = strip_line_number(remove_paren_comments(command))
         if not text:
             return None
         self._queued += 1

@@ -1,0 +1,128 @@
+"""The fault layer: damages bytes between the link and the protocol, per direction.
+
+It sits below every protocol state machine, so the printer model never sees a fault, only the
+commands that survive it. Damage is drawn from a seeded generator: a run can be repeated.
+"""
+
+import random
+from dataclasses import dataclass, field
+from enum import Enum
+
+
+class Direction(Enum):
+    TO_PRINTER = "to-printer"
+    TO_HOST = "to-host"
+
+
+@dataclass(frozen=True)
+class LineFaults:
+    """What happens to bytes travelling one way."""
+
+    bit_error_rate: float = 0.0  # chance that any one bit is flipped
+    drop_rate: float = 0.0  # chance that any one byte is lost
+    # Chance that a line gets one damaged character, never its end: what a checksum catches.
+    # (A damaged line end leaves the printer waiting for the rest of the line, which hangs
+    # hosts with no `ok` timeout, such as printcore; bit-errors includes that case.)
+    line_corruption_rate: float = 0.0
+
+    @property
+    def active(self) -> bool:
+        return self.bit_error_rate > 0 or self.drop_rate > 0 or self.line_corruption_rate > 0
+
+
+@dataclass(frozen=True)
+class FaultConfig:
+    to_printer: LineFaults = field(default_factory=LineFaults)
+    to_host: LineFaults = field(default_factory=LineFaults)
+    seed: int = 0
+
+
+_KINDS = {
+    "bit-errors": "bit_error_rate",
+    "drop-bytes": "drop_rate",
+    "corrupt-lines": "line_corruption_rate",
+}
+_LINE_ENDS = b"\r\n"
+
+
+def parse_fault(spec: str, config: FaultConfig) -> FaultConfig:
+    """Add `DIRECTION:KIND=RATE` (e.g. `to-printer:bit-errors=1e-4`) to a configuration."""
+    direction_name, _, rest = spec.partition(":")
+    kind, _, value = rest.partition("=")
+    try:
+        direction = Direction(direction_name)
+    except ValueError:
+        raise ValueError(
+            f"{spec!r}: the direction must be {' or '.join(d.value for d in Direction)}"
+        ) from None
+    if kind not in _KINDS:
+        raise ValueError(f"{spec!r}: the kind must be one of {', '.join(_KINDS)}")
+    try:
+        rate = float(value)
+    except ValueError:
+        raise ValueError(f"{spec!r}: {value!r} is not a number") from None
+    if not 0.0 <= rate <= 1.0:
+        raise ValueError(f"{spec!r}: a rate is between 0 and 1")
+    attribute = "to_printer" if direction is Direction.TO_PRINTER else "to_host"
+    faults = getattr(config, attribute)
+    faults = LineFaults(**{**faults.__dict__, _KINDS[kind]: rate})
+    return FaultConfig(**{**config.__dict__, attribute: faults})
+
+
+@dataclass
+class FaultStats:
+    bits_flipped: int = 0
+    bytes_dropped: int = 0
+    lines_corrupted: int = 0
+
+
+class FaultLayer:
+    def __init__(self, config: FaultConfig = FaultConfig()) -> None:
+        self.config = config
+        self._random = random.Random(config.seed)
+        self.stats = {direction: FaultStats() for direction in Direction}
+        self._at_line_start = {direction: True for direction in Direction}
+
+    def to_printer(self, data: bytes) -> bytes:
+        return self._damage(data, Direction.TO_PRINTER, self.config.to_printer)
+
+    def to_host(self, data: bytes) -> bytes:
+        return self._damage(data, Direction.TO_HOST, self.config.to_host)
+
+    def _damage(self, data: bytes, direction: Direction, faults: LineFaults) -> bytes:
+        if not faults.active or not data:
+            return data
+        stats = self.stats[direction]
+        if faults.line_corruption_rate:
+            data = self._corrupt_lines(data, direction, faults.line_corruption_rate, stats)
+        byte_error_rate = 1.0 - (1.0 - faults.bit_error_rate) ** 8
+        out = bytearray()
+        for byte in data:
+            if faults.drop_rate and self._random.random() < faults.drop_rate:
+                stats.bytes_dropped += 1
+                continue
+            if byte_error_rate and self._random.random() < byte_error_rate:
+                byte ^= 1 << self._random.randrange(8)
+                stats.bits_flipped += 1
+            out.append(byte)
+        return bytes(out)
+
+    def _corrupt_lines(self, data: bytes, direction: Direction, rate: float, stats) -> bytes:
+        """Each line that starts in `data` is damaged with chance `rate`, in one character."""
+        out = bytearray(data)
+        start = 0
+        while start < len(out):
+            end = start
+            while end < len(out) and out[end] not in _LINE_ENDS:
+                end += 1
+            if self._at_line_start[direction] and end > start and self._random.random() < rate:
+                position = self._random.randrange(start, end)
+                while True:  # a flip that made a line end would cut the line, not damage it
+                    damaged = out[position] ^ (1 << self._random.randrange(8))
+                    if damaged not in _LINE_ENDS:
+                        break
+                out[position] = damaged
+                stats.lines_corrupted += 1
+            self._at_line_start[direction] = end < len(out)
+            start = end + 1
+        return bytes(out)
