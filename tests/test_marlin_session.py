@@ -183,3 +183,12 @@ async def test_auto_detection_follows_the_first_bytes_on_every_open(autojump_clo
                 received += await binary_host.receive_some(4096)
         assert f"\n{TEMPERATURES}\n".encode() in received
         assert received.startswith(b"LOG:Marlin started\n\nq000F98\n")
+
+
+async def test_curas_probe_finds_ok_and_t_on_one_line(autojump_clock):
+    async with running_printer(ServerConfig(protocol="auto")) as running:
+        cura = running.link.open_host()
+        await cura.send_all(b"\nM105\n")  # Cura's AutoDetectBaudJob probe
+        terminal = Terminal(cura)
+        lines = await terminal.read_until(lambda line: "ok" in line and "T:" in line, timeout=5)
+        assert lines[0] == "start" and len([line for line in lines if line.startswith("ok")]) == 1
