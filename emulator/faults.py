@@ -8,6 +8,8 @@ import random
 from dataclasses import dataclass, field
 from enum import Enum
 
+from emulator.fault_rules import FaultKind, FaultPlan, FaultRule
+
 
 class Direction(Enum):
     TO_PRINTER = "to-printer"
@@ -35,6 +37,15 @@ class FaultConfig:
     to_printer: LineFaults = field(default_factory=LineFaults)
     to_host: LineFaults = field(default_factory=LineFaults)
     seed: int = 0
+    rules: tuple[FaultRule, ...] = ()
+
+
+@dataclass(frozen=True)
+class Segment:
+    """Bytes for the other side, after a pause (a stall)."""
+
+    data: bytes = b""
+    pause: float = 0.0
 
 
 _KINDS = {
@@ -79,15 +90,92 @@ class FaultStats:
 class FaultLayer:
     def __init__(self, config: FaultConfig = FaultConfig()) -> None:
         self.config = config
+        self.plan = FaultPlan(config.rules, config.seed)
         self._random = random.Random(config.seed)
         self.stats = {direction: FaultStats() for direction in Direction}
         self._at_line_start = {direction: True for direction in Direction}
+        self._partial = {direction: b"" for direction in Direction}
+        self._link_rules = {d: self.plan.link_rules(d.value) for d in Direction}
 
-    def to_printer(self, data: bytes) -> bytes:
-        return self._damage(data, Direction.TO_PRINTER, self.config.to_printer)
+    def add_rule(self, rule: FaultRule) -> None:
+        self.plan.add(rule)
+        self._link_rules = {d: self.plan.link_rules(d.value) for d in Direction}
 
-    def to_host(self, data: bytes) -> bytes:
-        return self._damage(data, Direction.TO_HOST, self.config.to_host)
+    def set_rate(self, direction: str, attribute: str, rate: float) -> None:
+        key = "to_printer" if direction == Direction.TO_PRINTER.value else "to_host"
+        faults = getattr(self.config, key)
+        faults = LineFaults(**{**faults.__dict__, attribute: rate})
+        self.config = FaultConfig(**{**self.config.__dict__, key: faults})
+
+    def new_connection(self) -> None:
+        """A host (re)opened the port: half-received units belong to nobody."""
+        for direction in Direction:
+            self._partial[direction] = b""
+            self._at_line_start[direction] = True
+
+    def to_printer(self, data: bytes) -> list[Segment]:
+        return self._carry(data, Direction.TO_PRINTER, self.config.to_printer)
+
+    def to_host(self, data: bytes) -> list[Segment]:
+        return self._carry(data, Direction.TO_HOST, self.config.to_host)
+
+    def _carry(self, data: bytes, direction: Direction, faults: LineFaults) -> list[Segment]:
+        rules = self._link_rules[direction]
+        if rules:
+            segments = self._apply_rules(data, direction, rules)
+        else:
+            segments = [Segment(data)]
+        return [
+            Segment(self._damage(segment.data, direction, faults), segment.pause)
+            for segment in segments
+        ]
+
+    def _apply_rules(self, data: bytes, direction: Direction, rules) -> list[Segment]:
+        segments = [Segment()]
+        for unit in self._units(data, direction):
+            text = unit.decode("latin-1")
+            out, pause = unit, 0.0
+            for index, rule in rules:
+                if not unit.strip(b"\r\n") or not self.plan.fires(index, text):
+                    continue
+                kind = rule.kind
+                if kind is FaultKind.DROP:
+                    out = b""
+                elif kind is FaultKind.DUPLICATE:
+                    out = out + out
+                elif kind is FaultKind.TRUNCATE:
+                    out = out[: rule.length or len(out) // 2]
+                elif kind is FaultKind.GARBAGE:
+                    out = (rule.text.encode("latin-1") or self.plan.noise(rule.length or 48)) + out
+                elif kind is FaultKind.STALL:
+                    pause += rule.seconds
+            if pause:
+                segments.append(Segment(pause=pause))
+            last = segments[-1]
+            segments[-1] = Segment(last.data + out, last.pause)
+        return [s for s in segments if s.data or s.pause]
+
+    def _units(self, data: bytes, direction: Direction) -> list[bytes]:
+        """Complete units in arrival order; a unit not yet complete waits for its rest."""
+        buffer = self._partial[direction] + data
+        units = []
+        position = 0
+        while position < len(buffer):
+            if direction is Direction.TO_PRINTER and buffer[position] == 0xFF:
+                end = _packet_end(buffer, position)
+            else:
+                newline = buffer.find(b"\n", position)
+                header = buffer.find(b"\xff\xff", position) if direction is Direction.TO_PRINTER else -1
+                if 0 <= header < (newline if newline >= 0 else len(buffer)):
+                    end = header  # text before a packet is a unit of its own
+                else:
+                    end = newline + 1 if newline >= 0 else None
+            if end is None:
+                break
+            units.append(buffer[position:end])
+            position = end
+        self._partial[direction] = buffer[position:]
+        return units
 
     def _damage(self, data: bytes, direction: Direction, faults: LineFaults) -> bytes:
         if not faults.active or not data:
@@ -126,3 +214,17 @@ class FaultLayer:
             self._at_line_start[direction] = end < len(out)
             start = end + 1
         return bytes(out)
+
+
+def _packet_end(buffer: bytes, start: int) -> int | None:
+    """Where the Ultimaker packet starting at `start` ends, or None if it is not all here.
+
+    A lone 0xFF, or a header whose length is impossible, ends at once as a unit of noise.
+    """
+    if len(buffer) < start + 4:
+        return None if buffer[start:start + 2] in (b"\xff", b"\xff\xff") else start + 1
+    if buffer[start + 1] != 0xFF:
+        return start + 1
+    length = buffer[start + 3]
+    end = start + 4 + length + 2
+    return end if end <= len(buffer) else None

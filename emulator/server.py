@@ -4,9 +4,12 @@ from dataclasses import dataclass
 
 import trio
 
-from emulator.faults import FaultConfig, FaultLayer
+from emulator.fault_rules import LINK_KINDS, FaultKind, FaultRule
+from emulator.faults import FaultConfig, FaultLayer, Segment
 from emulator.journal import Journal
+from emulator.link.conditions import LinkConditions, Pipe
 from emulator.link.pty import HostOpened, PtyLink
+from emulator.printer import failures
 from emulator.printer.model import Printer
 from emulator.sessions.detect import Detected, DetectingSession
 from emulator.sessions.marlin import MarlinSession
@@ -22,6 +25,8 @@ class ServerConfig:
     ultimaker_queue_size: int = 8
     advanced_ok: bool = False
     faults: FaultConfig = FaultConfig()
+    conditions: LinkConditions = LinkConditions()
+    baud_from_host: bool = False  # pace at the baud rate the host set on the port
 
 
 class PrinterServer:
@@ -32,6 +37,10 @@ class PrinterServer:
         self.config = config
         self.boots = 0
         self.faults = FaultLayer(config.faults)
+        self._to_printer = Pipe(self._feed_session, config.conditions, config.faults.seed)
+        self._to_host = Pipe(link.send, config.conditions, config.faults.seed + 1)
+        self._restarts_in, self._restarts = trio.open_memory_channel[str](16)
+        self._nursery: trio.Nursery | None = None
         self._session = None
         self._session_scope = trio.CancelScope()
 
@@ -39,21 +48,34 @@ class PrinterServer:
         """Power on, then serve; started (for nursery.start) once the power-on greeting is out,
         so a host that opens the port as soon as it hears of it sees one boot, not two."""
         async with trio.open_nursery() as nursery:
+            self._nursery = nursery
             nursery.start_soon(self.link.run_writer)
+            nursery.start_soon(self._to_printer.run)
+            nursery.start_soon(self._to_host.run)
             await nursery.start(self._boot)
             await self.link.drain()
             task_status.started()
-            while True:
-                item = await self.link.receive()
-                if isinstance(item, HostOpened):
-                    self._session_scope.cancel()
-                    self.link.discard_output()
-                    await nursery.start(self._boot)
-                elif self._session is not None:
-                    self._session.feed(self.faults.to_printer(item))
-                # Bytes that arrive while the printer is still booting are lost, as on a real board.
+            nursery.start_soon(self._receive)
+            nursery.start_soon(self._fire_timed_faults, trio.current_time())
+            async for reason in self._restarts:
+                await self._restart(reason)
 
-    async def _boot(self, task_status=trio.TASK_STATUS_IGNORED) -> None:
+    async def _restart(self, reason: str) -> None:
+        self._session_scope.cancel()
+        await self._nursery.start(self._boot, reason)
+
+    async def _receive(self) -> None:
+        while True:
+            item = await self.link.receive()
+            if isinstance(item, HostOpened):
+                self._new_connection()
+                # The host's open resets the board, as DTR does on a real one; what the host
+                # sends next is read by the new boot.
+                await self._restart(" External Reset")
+            else:
+                self._carry(self.faults.to_printer(item), self._to_printer)
+
+    async def _boot(self, reason: str = "PowerUp", task_status=trio.TASK_STATUS_IGNORED) -> None:
         self._session = None
         with trio.CancelScope() as scope:
             self._session_scope = scope
@@ -62,7 +84,6 @@ class PrinterServer:
             self.printer.reset(now)
             if self.config.boot_delay > 0:
                 await trio.sleep(self.config.boot_delay)
-            reason = "PowerUp" if self.boots == 0 else " External Reset"
             session = self._make_session(self.config.protocol, reason)
             self.boots += 1
             session.boot()
@@ -75,13 +96,89 @@ class PrinterServer:
             return DetectingSession(lambda detected: self._make_session(detected, reason))
         if protocol == "marlin":
             return MarlinSession(
-                self.printer, self.journal, self._send, self.config.advanced_ok, reason
+                self.printer, self.journal, self._send, self.config.advanced_ok, reason,
+                self._before_command,
             )
         if protocol == "ultimaker":
             return UltimakerSession(
-                self.printer, self.journal, self._send, self.config.ultimaker_queue_size
+                self.printer, self.journal, self._send, self.config.ultimaker_queue_size,
+                self._before_command,
             )
         raise ValueError(f"unknown protocol {protocol!r}")
 
     def _send(self, data: bytes) -> None:
-        self.link.send(self.faults.to_host(data))
+        self._carry(self.faults.to_host(data), self._to_host)
+
+    def _carry(self, segments: list[Segment], pipe: Pipe) -> None:
+        for segment in segments:
+            pipe.put(segment.data, segment.pause)
+
+    def _feed_session(self, data: bytes) -> None:
+        # Bytes that arrive while the printer is still booting are lost, as on a real board.
+        if self._session is not None and data:
+            self._session.feed(data)
+
+    def _new_connection(self) -> None:
+        self.link.discard_output()
+        self._to_printer.clear()
+        self._to_host.clear()
+        self.faults.new_connection()
+        if self.config.baud_from_host:
+            baud = self.link.host_baud()
+            self._to_printer.baud = self._to_host.baud = baud
+
+    # -- faults that fire on a command or at a moment ------------------------------------
+    def _before_command(self, text: str) -> None:
+        plan = self.faults.plan
+        for index, rule in plan.printer_rules():
+            if plan.fires(index, text):
+                self._printer_fault(rule)
+
+    def _printer_fault(self, rule: FaultRule) -> None:
+        session = self._active_session()
+        if rule.kind is FaultKind.REBOOT:
+            self._restarts_in.send_nowait(" Watchdog Reset")
+        elif rule.kind is FaultKind.QUEUE_FULL:
+            if session is not None:
+                session.block_queue(rule.seconds, self._nursery)
+        else:
+            lines = failures.apply(self.printer, rule, trio.current_time())
+            if session is not None:
+                session.announce(lines)
+
+    def fire_printer_fault(self, rule: FaultRule) -> None:
+        """A printer fault now, from outside (the control channel)."""
+        self._printer_fault(rule)
+
+    def announce(self, lines) -> None:
+        session = self._active_session()
+        if session is not None:
+            session.announce(lines)
+
+    @property
+    def protocol_name(self) -> str | None:
+        session = self._active_session()
+        if isinstance(session, MarlinSession):
+            return "marlin"
+        if isinstance(session, UltimakerSession):
+            return "ultimaker"
+        return None
+
+    def _active_session(self):
+        session = self._session
+        return session.active if isinstance(session, DetectingSession) else session
+
+    async def _fire_timed_faults(self, powered_on: float) -> None:
+        for rule in self.faults.plan.timed_rules():
+            await trio.sleep_until(powered_on + rule.trigger.at)
+            if rule.kind not in LINK_KINDS:
+                self._printer_fault(rule)
+            elif rule.kind is FaultKind.GARBAGE:
+                noise = rule.text.encode("latin-1") or self.faults.plan.noise(rule.length or 48)
+                if rule.direction == "to-printer":
+                    self._to_printer.put(noise)
+                else:
+                    self._to_host.put(noise)
+            elif rule.kind is FaultKind.STALL:
+                pipe = self._to_printer if rule.direction == "to-printer" else self._to_host
+                pipe.put(b"", rule.seconds)

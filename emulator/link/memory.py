@@ -17,6 +17,7 @@ class MemoryLink:
         self._outbound = bytearray()
         self._outbound_ready = trio.Event()
         self.host = HostEnd(self)
+        self.baud: int | None = None  # what a host "set on the port"
 
     # -- the printer's side (as PtyLink) -------------------------------------------------
     async def receive(self) -> bytes | HostOpened:
@@ -26,6 +27,9 @@ class MemoryLink:
         if data:
             self._outbound += data
             self._outbound_ready.set()
+
+    def host_baud(self) -> int | None:
+        return self.baud
 
     async def drain(self) -> None:
         await trio.lowlevel.checkpoint()

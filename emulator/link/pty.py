@@ -17,6 +17,8 @@ from dataclasses import dataclass
 
 import trio
 
+_TCGETS2 = 0x802C542A  # _IOR('T', 0x2A, struct termios2): reads custom rates such as 250000
+_TERMIOS2 = struct.Struct("IIIIB19sII")
 _TIOCPKT_DATA = 0
 _TIOCPKT_FLUSHREAD = 1
 # What the printer may keep unsent while nobody reads the port; past it the oldest bytes go,
@@ -67,6 +69,15 @@ class PtyLink:
             del self._pending[:overflow]
             self.dropped_bytes += overflow
         self._output_ready.set()
+
+    def host_baud(self) -> int | None:
+        """The baud rate the host set on the port (a pty itself never slows down)."""
+        try:
+            raw = fcntl.ioctl(self._slave, _TCGETS2, bytes(_TERMIOS2.size))
+        except OSError:
+            return None
+        speed = _TERMIOS2.unpack(raw)[-1]
+        return speed or None
 
     async def drain(self) -> None:
         """Wait until what was sent so far has left for the pty (or was given up)."""

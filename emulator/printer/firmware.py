@@ -46,7 +46,7 @@ def halt(printer, command: Command, now: float):
     # Normally the emergency parser has killed the printer before this copy is dequeued.
     if printer.halted:
         return reply()
-    return reply(*printer.kill("M112 Shutdown", now))
+    return reply(*printer.kill("echo:M112 Shutdown", now))
 
 
 def auto_report_position(printer, command: Command, now: float):

@@ -1,5 +1,6 @@
 """Temperature and fan G-codes: M104/M109, M140/M190, M105, M155, M106/M107 and T<n>."""
 
+from emulator.printer.failures import thermal_error
 from emulator.printer.gcode import Command
 from emulator.printer.steps import Reply, Report, Sleep, reply
 
@@ -7,6 +8,10 @@ from emulator.printer.steps import Reply, Report, Sleep, reply
 TEMP_WINDOW = 1.0
 TEMP_RESIDENCY_TIME = 10.0
 REPORT_INTERVAL = 1.0
+# Marlin's heating watch (THERMAL_PROTECTION): while heating, the temperature must rise by
+# WATCH_TEMP_INCREASE within WATCH_TEMP_PERIOD, or the heater is taken for dead.
+WATCH_TEMP_PERIOD = {"hotend": 20.0, "bed": 60.0}
+WATCH_TEMP_INCREASE = {"hotend": 2.0, "bed": 2.0}
 
 
 def temperature_report(printer, now: float, tool: int | None = None) -> str:
@@ -76,7 +81,15 @@ def _set_and_wait(printer, heater, command: Command, now: float, tool: int | Non
     # Compared against stored end times: `now - start >= span` can round short and never hold.
     residency_end = None
     next_report = now
+    kind = "hotend" if tool is not None else "bed"
+    watch_end, watch_goal = now + WATCH_TEMP_PERIOD[kind], heater.temperature(now) + WATCH_TEMP_INCREASE[kind]
     while not printer.heating_cancelled and not printer.halted:
+        if residency_end is None and heater.target > heater.temperature(now) and now >= watch_end:
+            if heater.temperature(now) < watch_goal:
+                for line in thermal_error(printer, "Heating failed", "B" if tool is None else f"T{tool}", now):
+                    yield Report(line)
+                return now
+            watch_end, watch_goal = now + WATCH_TEMP_PERIOD[kind], heater.temperature(now) + WATCH_TEMP_INCREASE[kind]
         if residency_end is None and abs(heater.temperature(now) - heater.target) <= TEMP_WINDOW:
             residency_end = now + TEMP_RESIDENCY_TIME
         if residency_end is not None and now >= residency_end:
@@ -86,7 +99,7 @@ def _set_and_wait(printer, heater, command: Command, now: float, tool: int | Non
             yield Report(f" {temperature_report(printer, now, tool)} W:{remaining}")
             next_report = now + REPORT_INTERVAL
         if residency_end is None:
-            wake = min(next_report, max(heater.reached_at(now), now + 0.01))
+            wake = min(next_report, watch_end, max(heater.reached_at(now), now + 0.01))
         else:
             wake = min(next_report, residency_end)
         now = yield Sleep(wake)

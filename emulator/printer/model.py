@@ -143,18 +143,21 @@ class Printer:
         if command.code == "M108":
             self.heating_cancelled = True
         elif command.code == "M112":
-            return self.kill("M112 Shutdown", now)
+            return self.kill("echo:M112 Shutdown", now)
         elif command.code == "M410":
             motion.quickstop(self, now)
         return ()
 
     def kill(self, reason: str, now: float) -> tuple[str, ...]:
-        """kill(): heaters off, motion stopped, and nothing more until a reset."""
+        """kill(): heaters off, motion stopped, and nothing more until a reset.
+
+        `reason` is the line that says why (`echo:M112 Shutdown`, `Error:Thermal Runaway...`).
+        """
         self.halted = True
         self.planner.clear()
         for heater in (*self.hotends, self.bed):
             heater.set_target(now, 0.0)
-        lines = [f"echo:{reason}", "Error:Printer halted. kill() called!"]
+        lines = [reason, "Error:Printer halted. kill() called!"]
         if self.config.capability("HOST_ACTION_COMMANDS"):
             lines.append("//action:poweroff")
         return tuple(lines)

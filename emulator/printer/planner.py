@@ -76,5 +76,13 @@ class Planner:
         fraction = (now - block.start) / (block.end - block.start)
         return tuple(a + (b - a) * fraction for a, b in zip(block.origin, block.target))
 
+    def stall(self, now: float, seconds: float) -> None:
+        """The steppers stop for `seconds` (a driver fault): every planned move runs later."""
+        self._retire(now)
+        self._blocks = deque(
+            Block(max(block.start, now) + seconds, block.end + seconds, block.origin, block.target)
+            for block in self._blocks
+        )
+
     def clear(self) -> None:
         self._blocks.clear()

@@ -27,6 +27,7 @@ BED = HeaterSpec(saturation=130.0, heat_tau=200.0, cool_tau=600.0, max_target=12
 class Heater:
     def __init__(self, spec: HeaterSpec, now: float = 0.0, temperature: float = AMBIENT) -> None:
         self.spec = spec
+        self.broken = False  # a dead heater cartridge: it only ever cools
         self.target = 0.0
         self._since = now
         self._start_temperature = temperature
@@ -36,8 +37,17 @@ class Heater:
         self._since = now
         self.target = max(0.0, min(target, self.spec.max_target))
 
+    def force_temperature(self, now: float, temperature: float) -> None:
+        """The heater is this hot now (a draught, a blast of fan, a test); physics goes on from here."""
+        self._start_temperature = temperature
+        self._since = now
+
+    def break_down(self, now: float) -> None:
+        self.set_target(now, self.target)
+        self.broken = True
+
     def _heating(self) -> bool:
-        return self.target > self._start_temperature
+        return self.target > self._start_temperature and not self.broken
 
     def temperature(self, now: float) -> float:
         elapsed = max(0.0, now - self._since)
@@ -47,13 +57,15 @@ class Heater:
             value = sat - (sat - start) * math.exp(-elapsed / self.spec.heat_tau)
             return min(value, self.target)
         value = AMBIENT + (start - AMBIENT) * math.exp(-elapsed / self.spec.cool_tau)
-        return max(value, self.target) if self.target > AMBIENT else value
+        return max(value, self.target) if self.target > AMBIENT and not self.broken else value
 
     def reached_at(self, now: float) -> float:
         """When the temperature will be within a degree of target (now if it already is)."""
         current = self.temperature(now)
         if abs(current - self.target) <= 1.0 or self.target == 0.0:
             return now
+        if self.broken:
+            return math.inf
         if current < self.target:
             sat = self.spec.saturation
             goal = self.target - 0.5
@@ -66,6 +78,8 @@ class Heater:
     def power(self, now: float) -> int:
         if self.target == 0.0:
             return 0
+        if self.broken:
+            return FULL_POWER  # driven flat out, to no effect
         if self.temperature(now) < self.target - 0.01:
             return FULL_POWER
         # Holding: the power that balances losses at this temperature.

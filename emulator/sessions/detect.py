@@ -34,8 +34,9 @@ class DetectingSession:
         self._detected = trio.Event()
 
     @property
-    def protocol(self) -> Detected | None:
-        return self._protocol if self._session is not None else None
+    def active(self):
+        """The session that took over, once the protocol is known."""
+        return self._session
 
     def boot(self) -> None:
         pass

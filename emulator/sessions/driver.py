@@ -6,6 +6,7 @@ import trio
 
 from emulator.journal import Journal
 from wire.gcode import strip_comment
+from emulator.printer.gcode import parse
 from emulator.printer.model import Printer, Reply, Report, Sleep
 
 
@@ -33,6 +34,7 @@ async def run_command(
     except StopIteration as finished:
         reply = finished.value
     executed = strip_comment(line)
-    if executed:
+    killed_while_running = printer.halted and not halted_before
+    if executed and (not killed_while_running or parse(executed).code == "M112"):
         journal.record(executed)
     return reply

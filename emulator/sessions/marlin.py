@@ -8,7 +8,7 @@ import trio
 
 from emulator.journal import Journal
 from emulator.printer.gcode import parse
-from emulator.printer.model import SELF_REPORTING, Printer
+from emulator.printer.model import SELF_REPORTING, Printer, Reply
 from emulator.protocols.marlin import EmergencyCommand, LineReceived, MarlinProtocol, Ok, Output
 from emulator.sessions.driver import run_command
 
@@ -39,11 +39,13 @@ class MarlinSession:
         send: Callable[[bytes], None],
         advanced_ok: bool = False,
         reset_reason: str = "PowerUp",
+        before_command: Callable[[str], None] = lambda text: None,
     ) -> None:
         self.printer = printer
         self.journal = journal
         self._send = send
         self.reset_reason = reset_reason
+        self._before_command = before_command
         self.protocol = MarlinProtocol(advanced_ok)
         self._queue_in, self._queue_out = trio.open_memory_channel[LineReceived](math.inf)
         self.busy_interval = BUSY_INTERVAL
@@ -57,6 +59,23 @@ class MarlinSession:
 
     def _say(self, text: str) -> None:
         self._send(self.protocol.send(Output(text)))
+
+    def announce(self, lines) -> None:
+        """Lines the firmware prints on its own (a fault, a kill)."""
+        for line in lines:
+            self._say(line)
+
+    def block_queue(self, seconds: float, nursery: trio.Nursery) -> None:
+        """The command queue stays full for a while: the firmware stops reading its input."""
+        size = self.protocol.queue_size
+        self.protocol.queue_size = 0
+
+        async def reopen() -> None:
+            await trio.sleep(seconds)
+            self.protocol.queue_size = size
+            self.feed(b"")
+
+        nursery.start_soon(reopen)
 
     def feed(self, data: bytes) -> None:
         if self.printer.halted:
@@ -126,6 +145,9 @@ class MarlinSession:
         self._reports_changed.set()
 
     async def _run(self, text: str):
+        self._before_command(text)
+        if self.printer.halted:
+            return Reply()
         code = parse(text).code
         self._set_busy(code not in SELF_REPORTING)
         try:

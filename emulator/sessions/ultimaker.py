@@ -26,10 +26,12 @@ class UltimakerSession:
         journal: Journal,
         send: Callable[[bytes], None],
         queue_size: int = 8,
+        before_command: Callable[[str], None] = lambda text: None,
     ) -> None:
         self.printer = printer
         self.journal = journal
         self._send = send
+        self._before_command = before_command
         self.protocol = UltimakerProtocol(queue_size)
         self._queue_in, self._queue_out = trio.open_memory_channel[CommandReceived](math.inf)
         self._room_may_change = trio.Event()
@@ -52,15 +54,45 @@ class UltimakerSession:
             nursery.start_soon(self._execute_commands)
             nursery.start_soon(self._report_room)
 
+    def announce(self, lines) -> None:
+        """Lines the firmware prints on its own: errors out of band as `Error:`, the rest as LOG."""
+        for line in lines:
+            if line.startswith("Error:"):
+                self._send(self.protocol.send(OutOfBand(OutOfBandKind.ERROR, line[len("Error:"):])))
+            else:
+                self._send(self.protocol.send(OutOfBand(OutOfBandKind.LOG, line)))
+
+    def block_queue(self, seconds: float, nursery: trio.Nursery) -> None:
+        """The command queue stays full for a while: packets are refused with `buffer full`."""
+        size = self.protocol.queue_size
+        self.protocol.queue_size = 0
+
+        async def reopen() -> None:
+            await trio.sleep(seconds)
+            self.protocol.queue_size = size
+
+        nursery.start_soon(reopen)
+
     async def _execute_commands(self) -> None:
         async for received in self._queue_out:
+            if self.printer.halted:
+                await trio.sleep_forever()
+            self._before_command(received.text)
+            if self.printer.halted:
+                await trio.sleep_forever()
             reply = await run_command(self.printer, received.text, self.journal, self._respond)
+            if self.printer.halted:
+                self.announce(reply.response_data())
+                await trio.sleep_forever()
             room = self.printer.room(trio.current_time())
             self._send(self.protocol.send(CommandDone(received.seq, room, reply.response_data())))
             self._room_may_change.set()
 
     def _respond(self, text: str) -> None:
-        self._send(self.protocol.send(ResponseData(text)))
+        if text.startswith("Error:"):
+            self.announce((text,))
+        else:
+            self._send(self.protocol.send(ResponseData(text)))
 
     def _update_room(self) -> None:
         self._send(self.protocol.send(RoomChanged(self.printer.room(trio.current_time()))))

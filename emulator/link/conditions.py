@@ -1,0 +1,70 @@
+"""How the line behaves in time: baud-rate pacing, latency with jitter, and stalls.
+
+Each direction is a Pipe that delivers bytes in order (a serial line never reorders), no
+sooner than latency plus jitter after they were sent, and no faster than the baud rate
+allows: each byte costs 10 bit times (start, 8 data, stop). With nothing configured and
+no stall pending, bytes pass straight through.
+"""
+
+import math
+import random
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import trio
+
+
+@dataclass(frozen=True)
+class LinkConditions:
+    baud: int | None = None  # None: no pacing
+    latency: float = 0.0  # seconds, fixed part
+    jitter: float = 0.0  # seconds, up to this much more, uniformly
+
+    @property
+    def active(self) -> bool:
+        return bool(self.baud) or self.latency > 0 or self.jitter > 0
+
+
+class Pipe:
+    def __init__(self, deliver: Callable[[bytes], None], conditions: LinkConditions, seed: int = 0) -> None:
+        self._deliver = deliver
+        self.conditions = conditions
+        self._random = random.Random(seed)
+        self._queue: deque[tuple[float, bytes]] = deque()
+        self._free_at = -math.inf  # when the last queued byte will have arrived
+        self._changed = trio.Event()
+        self.baud: int | None = conditions.baud
+
+    def put(self, data: bytes, pause: float = 0.0) -> None:
+        now = trio.current_time()
+        if not self._queue and not pause and not self.conditions.active and self._free_at <= now:
+            self._deliver(data)
+            return
+        start = max(now + self.conditions.latency + self._random.uniform(0, self.conditions.jitter),
+                    self._free_at)
+        if pause:
+            start = max(start, now + pause)
+        arrive = start + (len(data) * 10 / self.baud if self.baud else 0.0)
+        self._free_at = arrive
+        self._queue.append((arrive, data))
+        self._changed.set()
+
+    def clear(self) -> None:
+        """The connection is gone: bytes still on the wire are lost."""
+        self._queue.clear()
+        self._free_at = -math.inf
+
+    async def run(self) -> None:
+        while True:
+            changed = self._changed = trio.Event()
+            if not self._queue:
+                await changed.wait()
+                continue
+            arrive, data = self._queue[0]
+            if trio.current_time() < arrive:
+                with trio.move_on_at(arrive):
+                    await changed.wait()
+                continue
+            self._queue.popleft()
+            self._deliver(data)

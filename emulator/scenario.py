@@ -1,0 +1,284 @@
+"""Scenarios: a printer, the faults it suffers, a job, and what must hold afterwards.
+
+Read from TOML (see scenarios/README.md for the format). Every mistake in a file is reported
+with the file, the key and the problem, never as a traceback.
+"""
+
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from emulator.fault_rules import LINK_KINDS, FaultKind, FaultRule, Trigger
+from emulator.faults import FaultConfig, LineFaults
+from emulator.link.conditions import LinkConditions
+
+RATE_KINDS = {"bit-errors": "bit_error_rate", "drop-bytes": "drop_rate", "corrupt-lines": "line_corruption_rate"}
+DIRECTIONS = ("to-printer", "to-host")
+PROTOCOLS = ("auto", "marlin", "ultimaker")
+OUTCOMES = ("completed", "failed")
+TRIGGER_KEYS = ("nth", "every", "at", "pattern", "probability")
+
+
+class ScenarioError(Exception):
+    """A scenario file that cannot be used; the message names the file, key and problem."""
+
+
+@dataclass(frozen=True)
+class PrinterSetup:
+    protocol: str = "auto"
+    extruders: int = 1
+    baud: int | None = None
+    baud_from_host: bool = False
+    latency: float = 0.0
+    jitter: float = 0.0
+    boot_delay: float = 0.0
+    advanced_ok: bool = False
+
+    @property
+    def conditions(self) -> LinkConditions:
+        return LinkConditions(self.baud, self.latency, self.jitter)
+
+
+@dataclass(frozen=True)
+class HostSetup:
+    protocol: str | None = None  # default: the printer's (required when the printer is auto)
+    window: int = 3
+    timeout: float = 2.0
+    retries: int = 8
+
+
+@dataclass(frozen=True)
+class Expectations:
+    exactly_once: bool | None = None
+    outcome: str | None = None
+    error: str | None = None
+    resends: tuple[int, int] | None = None
+    printer_halted: bool | None = None
+    lines_include: tuple[str, ...] = ()
+    lines_exclude: tuple[str, ...] = ()
+
+
+@dataclass(frozen=True)
+class Scenario:
+    path: Path
+    name: str
+    description: str = ""
+    printer: PrinterSetup = field(default_factory=PrinterSetup)
+    faults: FaultConfig = field(default_factory=FaultConfig)
+    job: tuple[str, ...] = ()
+    job_file: Path | None = None
+    host: HostSetup = field(default_factory=HostSetup)
+    expect: Expectations = field(default_factory=Expectations)
+
+    @property
+    def host_protocol(self) -> str:
+        return self.host.protocol or self.printer.protocol
+
+
+class _Reader:
+    """Typed access to one table of the file, with errors that say where."""
+
+    def __init__(self, path: Path, where: str, table: dict) -> None:
+        self.path, self.where, self.table = path, where, table
+        self._used: set[str] = set()
+
+    def fail(self, key: str, problem: str):
+        raise ScenarioError(f"{self.path}: {self.where}{key}: {problem}".replace(": : ", ": "))
+
+    def get(self, key: str, kinds, default=None, choices=None, minimum=None, maximum=None):
+        self._used.add(key)
+        if key not in self.table:
+            return default
+        value = self.table[key]
+        kinds = kinds if isinstance(kinds, tuple) else (kinds,)
+        if isinstance(value, bool) and bool not in kinds or not isinstance(value, kinds):
+            names = " or ".join(kind.__name__.replace("str", "a string").replace("float", "a number")
+                                .replace("int", "a whole number").replace("bool", "true or false")
+                                .replace("list", "a list") for kind in kinds)
+            self.fail(key, f"must be {names}, not {value!r}")
+        if choices is not None and value not in choices:
+            self.fail(key, f"must be one of {', '.join(map(repr, choices))}, not {value!r}")
+        if minimum is not None and value < minimum:
+            self.fail(key, f"must be at least {minimum}, not {value!r}")
+        if maximum is not None and value > maximum:
+            self.fail(key, f"must be at most {maximum}, not {value!r}")
+        return value
+
+    def table_at(self, key: str) -> "_Reader":
+        value = self.get(key, dict, {})
+        return _Reader(self.path, f"[{key}] ", value)
+
+    def finish(self) -> None:
+        unknown = sorted(set(self.table) - self._used)
+        if unknown:
+            self.fail(unknown[0], "is not a key this table knows")
+
+
+def load(path: str | Path) -> Scenario:
+    path = Path(path)
+    try:
+        data = tomllib.loads(path.read_text(encoding="utf-8"))
+    except OSError as error:
+        raise ScenarioError(f"{path}: cannot read: {error.strerror}") from None
+    except UnicodeDecodeError:
+        raise ScenarioError(f"{path}: not UTF-8 text") from None
+    except tomllib.TOMLDecodeError as error:
+        raise ScenarioError(f"{path}: not valid TOML: {error}") from None
+    top = _Reader(path, "", data)
+    name = top.get("name", str, path.stem)
+    description = top.get("description", str, "")
+    printer = _printer(top.table_at("printer"))
+    seed = top.get("seed", int, 0)
+    faults = _faults(path, top.get("fault", list, []), seed)
+    job, job_file = _job(path, top.table_at("job"))
+    host = _host(top.table_at("host"), printer)
+    expect = _expect(top.table_at("expect"))
+    top.finish()
+    return Scenario(path, name, description, printer, faults, job, job_file, host, expect)
+
+
+def _printer(table: _Reader) -> PrinterSetup:
+    baud = table.get("baud", (int, str), None)
+    if isinstance(baud, str) and baud != "host":
+        table.fail("baud", f"must be a rate such as 250000, or \"host\", not {baud!r}")
+    if isinstance(baud, int) and baud <= 0:
+        table.fail("baud", "must be positive")
+    setup = PrinterSetup(
+        protocol=table.get("protocol", str, "auto", PROTOCOLS),
+        extruders=table.get("extruders", int, 1, minimum=1, maximum=8),
+        baud=baud if isinstance(baud, int) else None,
+        baud_from_host=baud == "host",
+        latency=table.get("latency_ms", (int, float), 0, minimum=0) / 1000,
+        jitter=table.get("jitter_ms", (int, float), 0, minimum=0) / 1000,
+        boot_delay=table.get("boot_delay", (int, float), 0.0, minimum=0),
+        advanced_ok=table.get("advanced_ok", bool, False),
+    )
+    table.finish()
+    return setup
+
+
+def _faults(path: Path, entries: list, seed: int) -> FaultConfig:
+    rates = {direction: {} for direction in DIRECTIONS}
+    rules = []
+    for number, entry in enumerate(entries, start=1):
+        fault = parse_fault_table(entry, f"{path}: [[fault]] #{number}")
+        if isinstance(fault, FaultRule):
+            rules.append(fault)
+        else:
+            direction, attribute, rate = fault
+            rates[direction][attribute] = rate
+    return FaultConfig(
+        to_printer=LineFaults(**rates["to-printer"]),
+        to_host=LineFaults(**rates["to-host"]),
+        seed=seed,
+        rules=tuple(rules),
+    )
+
+
+def parse_fault_table(entry, where: str) -> FaultRule | tuple[str, str, float]:
+    """One `[[fault]]` table: a triggered rule, or (direction, LineFaults field, rate)."""
+    if not isinstance(entry, dict):
+        raise ScenarioError(f"{where}: must be a table")
+    table = _Reader(Path(where), "", entry)
+    table.path = where  # errors name the place as given
+    kinds = [k.value for k in FaultKind] + list(RATE_KINDS)
+    kind = table.get("kind", str, None, kinds)
+    if kind is None:
+        table.fail("kind", f"is missing; one of {', '.join(kinds)}")
+    direction = table.get("direction", str, None, DIRECTIONS)
+    if kind in RATE_KINDS:
+        if direction is None:
+            table.fail("direction", "is missing: to-printer or to-host")
+        rate = table.get("rate", (int, float), 0.0, minimum=0, maximum=1)
+        table.finish()
+        return direction, RATE_KINDS[kind], float(rate)
+    fault_kind = FaultKind(kind)
+    if fault_kind in LINK_KINDS and direction is None:
+        table.fail("direction", f"is missing: a {kind} fault happens to-printer or to-host")
+    trigger_values = {key: table.get(key, (int, float, str), None) for key in TRIGGER_KEYS}
+    times = table.get("times", int, None, minimum=1)
+    try:
+        trigger = Trigger(**trigger_values, times=times)
+    except (TypeError, ValueError) as error:
+        table.fail("trigger", str(error))
+    rule = FaultRule(
+        kind=fault_kind,
+        trigger=trigger,
+        direction=direction,
+        seconds=float(table.get("seconds", (int, float), 0.0, minimum=0)),
+        text=table.get("text", str, ""),
+        length=table.get("length", int, 0, minimum=0),
+        heater=table.get("heater", str, "T0"),
+    )
+    table.finish()
+    return rule
+
+
+def _job(path: Path, table: _Reader) -> tuple[tuple[str, ...], Path | None]:
+    from wire.gcode import strip_comment
+
+    file = table.get("file", str, None)
+    moves = table.get("moves", int, None, minimum=1)
+    table.finish()
+    if file is not None and moves is not None:
+        table.fail("file", "give a file or a number of moves, not both")
+    if file is not None:
+        job_path = (path.parent / file)
+        try:
+            text = job_path.read_text(encoding="utf-8", errors="replace")
+        except OSError as error:
+            table.fail("file", f"cannot read {job_path}: {error.strerror}")
+        return tuple(c for line in text.splitlines() if (c := strip_comment(line))), job_path
+    if moves is not None:
+        return generated_job(moves), None
+    return (), None
+
+
+def generated_job(moves: int) -> tuple[str, ...]:
+    """A plausible small print: home, heat without waiting, extrude along a square spiral."""
+    job = ["G28", "M104 S200", "M140 S60", "G92 E0", "G1 Z0.3 F600", "M106 S255"]
+    e = 0.0
+    for n in range(moves):
+        side = n % 4
+        x = 50 + (n // 4 % 40) + (20 if side in (1, 2) else 0)
+        y = 50 + (n // 4 % 40) + (20 if side in (2, 3) else 0)
+        e += 0.8
+        job.append(f"G1 X{x} Y{y} E{e:.2f} F3000")
+    job += ["M107", "M104 S0", "M140 S0", "M400"]
+    return tuple(job)
+
+
+def _host(table: _Reader, printer: PrinterSetup) -> HostSetup:
+    host = HostSetup(
+        protocol=table.get("protocol", str, None, ("marlin", "ultimaker")),
+        window=table.get("window", int, 3, minimum=1, maximum=32),
+        timeout=float(table.get("timeout", (int, float), 2.0, minimum=0.01)),
+        retries=table.get("retries", int, 8, minimum=1),
+    )
+    if host.protocol is None and printer.protocol == "auto":
+        table.fail("protocol", "is needed when the printer detects its protocol (printer.protocol = auto)")
+    table.finish()
+    return host
+
+
+def _expect(table: _Reader) -> Expectations:
+    resends = table.get("resends", list, None)
+    if resends is not None and (len(resends) != 2 or not all(isinstance(n, int) for n in resends)
+                                or resends[0] > resends[1]):
+        table.fail("resends", f"must be [least, most], two whole numbers, not {resends!r}")
+    include = table.get("lines_include", list, [])
+    exclude = table.get("lines_exclude", list, [])
+    for key, lines in (("lines_include", include), ("lines_exclude", exclude)):
+        if not all(isinstance(line, str) for line in lines):
+            table.fail(key, "must be a list of strings")
+    expect = Expectations(
+        exactly_once=table.get("exactly_once", bool, None),
+        outcome=table.get("outcome", str, None, OUTCOMES),
+        error=table.get("error", str, None),
+        resends=tuple(resends) if resends else None,
+        printer_halted=table.get("printer_halted", bool, None),
+        lines_include=tuple(include),
+        lines_exclude=tuple(exclude),
+    )
+    table.finish()
+    return expect
