@@ -11,7 +11,10 @@ from pathlib import Path
 import trio
 
 from emulator.clock import ScaledClock
+from emulator.control import Controller, serve_control
 from emulator.faults import FaultConfig, parse_fault
+from emulator.scenario import PrinterSetup, ScenarioError
+from emulator.scenario import load as load_scenario
 from emulator.journal import Journal
 from emulator.link.pty import PtyLink
 from emulator.printer.model import DEFAULT_CAPABILITIES, Printer, PrinterConfig
@@ -45,6 +48,14 @@ def _capability(text: str) -> tuple[str, bool]:
     return name.upper(), value == "1"
 
 
+def _baud(text: str) -> int | str:
+    if text == "host":
+        return text
+    if not text.isdigit() or int(text) <= 0:
+        raise argparse.ArgumentTypeError(f"must be a positive whole number or `host`, got {text!r}")
+    return int(text)
+
+
 def _extruder_count(text: str) -> int:
     if not text.isdigit() or not 1 <= int(text) <= 8:
         raise argparse.ArgumentTypeError(f"must be a whole number from 1 to 8, got {text!r}")
@@ -55,6 +66,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="fake-marlin",
         description="Start a virtual Marlin printer on a pseudo-terminal and print its /dev/pts path.",
+        epilog="Also: `fake-marlin scenario run PATH...` runs scenarios with the built-in host; "
+        "`fake-marlin verify JOB.gcode JOURNAL` checks a journal against its job.",
     )
     parser.add_argument(
         "--protocol", choices=PROTOCOLS, default="auto",
@@ -85,6 +98,20 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--seed", type=int, default=0, help="seed for random faults (default 0)")
     parser.add_argument(
+        "--scenario", metavar="FILE",
+        help="take the printer's settings and faults from a scenario file (its job is not run)",
+    )
+    parser.add_argument(
+        "--baud", metavar="RATE|host", type=_baud,
+        help="pace the line at this baud rate, or at the rate the host sets (`host`); default: no pacing",
+    )
+    parser.add_argument("--latency-ms", type=_non_negative_float, default=0.0, metavar="MS",
+                        help="delay each way, in milliseconds (default 0)")
+    parser.add_argument("--jitter-ms", type=_non_negative_float, default=0.0, metavar="MS",
+                        help="plus up to this much at random, order kept (default 0)")
+    parser.add_argument("--control", metavar="SOCKET",
+                        help="serve the control channel (JSON lines) on this Unix socket")
+    parser.add_argument(
         "--boot-delay", type=_non_negative_float, default=0.0, metavar="SECONDS",
         help="simulated time a reset takes before the printer answers (default 0)",
     )
@@ -110,10 +137,12 @@ class _Symlink:
             os.unlink(self.path)
 
 
-async def _serve_until_signalled(server: PrinterServer, path: str) -> None:
+async def _serve_until_signalled(server: PrinterServer, path: str, control: str | None) -> None:
     with trio.open_signal_receiver(signal.SIGINT, signal.SIGTERM, signal.SIGHUP) as signals:
         async with trio.open_nursery() as nursery:
             await nursery.start(server.run)
+            if control:
+                await nursery.start(serve_control, control, Controller(server))
             print(path, flush=True)
             async for _ in signals:
                 nursery.cancel_scope.cancel()
@@ -125,9 +154,27 @@ def _interrupt(signum, frame):
 
 
 def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else argv
+    if argv[:1] == ["verify"]:
+        from emulator.verify_cli import main as verify_main
+        return verify_main(argv[1:])
+    if argv[:1] == ["scenario"]:
+        from emulator.scenario_cli import main as scenario_main
+        return scenario_main(argv[1:])
     parser = build_parser()
     args = parser.parse_args(argv)
+    setup = PrinterSetup(
+        protocol=args.protocol, extruders=args.extruders, boot_delay=args.boot_delay,
+        advanced_ok=args.advanced_ok, latency=args.latency_ms / 1000, jitter=args.jitter_ms / 1000,
+        baud=args.baud if isinstance(args.baud, int) else None, baud_from_host=args.baud == "host",
+    )
     faults = FaultConfig(seed=args.seed)
+    if args.scenario:
+        try:
+            scenario = load_scenario(args.scenario)
+        except ScenarioError as error:
+            parser.error(f"argument --scenario: {error}")
+        setup, faults = scenario.printer, scenario.faults
     for spec in args.fault:
         try:
             faults = parse_fault(spec, faults)
@@ -158,16 +205,20 @@ def main(argv: list[str] | None = None) -> int:
             capabilities = dict(DEFAULT_CAPABILITIES)
             capabilities.update(args.capability)
             config = PrinterConfig(
-                extruders=args.extruders, sd_dir=sd_dir, capabilities=tuple(capabilities.items())
+                extruders=setup.extruders, sd_dir=sd_dir, capabilities=tuple(capabilities.items())
             )
             server_config = ServerConfig(
-                protocol=args.protocol,
-                boot_delay=args.boot_delay,
-                advanced_ok=args.advanced_ok,
+                protocol=setup.protocol,
+                boot_delay=setup.boot_delay,
+                advanced_ok=setup.advanced_ok,
                 faults=faults,
+                conditions=setup.conditions,
+                baud_from_host=setup.baud_from_host,
             )
             server = PrinterServer(link, Printer(config), journal, server_config)
-            trio.run(_serve_until_signalled, server, link.path, clock=ScaledClock(args.speed))
+            trio.run(
+                _serve_until_signalled, server, link.path, args.control, clock=ScaledClock(args.speed)
+            )
     except KeyboardInterrupt:
         pass
     finally:

@@ -102,6 +102,9 @@ class GoBackNWindow:
         self._echo_seq: int | None = None  # the `r` NN whose echoes we expect
         self._echoes_left = 0
         self._synchronised = False  # has the printer answered with a sequence number of ours?
+        self._refusals = 0  # rejects of the same packet in a row, with no progress between
+        self._refused_seq: int | None = None
+        self._hold_until = -math.inf  # no (re)transmission before this
         self._last_heard = -math.inf
         self._printer_room: int | None = None
 
@@ -124,7 +127,14 @@ class GoBackNWindow:
         return not self._backlog and not self._in_flight
 
     def next_deadline(self) -> float | None:
-        return min((self._due(packet) for packet in self._timed_packets()), default=None)
+        deadlines = [self._due(packet) for packet in self._timed_packets()]
+        waiting = any(packet.needs_transmit for packet in self._in_flight) or (
+            self._backlog and len(self._in_flight) < self.window
+        )
+        if waiting:
+            deadlines.append(self._hold_until)  # held back: send when the hold ends
+        deadline = min(deadlines, default=None)
+        return None if deadline is None or deadline == -math.inf else deadline
 
     def _timed_packets(self) -> list["_Packet"]:
         timed = [p for p in self._in_flight if p.state is PacketState.SENT and not p.needs_transmit]
@@ -151,6 +161,8 @@ class GoBackNWindow:
     def poll(self, now: float) -> list[Transmit]:
         """Handle expired timers, then return what to put on the wire now, in order."""
         self._expire(now)
+        if now < self._hold_until:
+            return []
         while len(self._in_flight) < self.window and self._backlog:
             self._in_flight.append(_Packet(self._backlog.popleft(), self._next_seq))
             self._next_seq = next_seq(self._next_seq)
@@ -198,6 +210,7 @@ class GoBackNWindow:
         if position is None or position >= len(self._in_flight):
             return []  # an echo of something already settled
         self._synchronised = True
+        self._refusals, self._refused_seq = 0, None
         echo_position = None if self._echo_seq is None else self._position(self._echo_seq)
         if echo_position is not None and echo_position <= position:
             # The resent packet got through, so no echo of its rejection can follow.
@@ -225,6 +238,15 @@ class GoBackNWindow:
             self._renumber(seq)
             return
         self._synchronised = True
+        if seq == self._refused_seq:
+            self._refusals += 1
+            if self._refusals >= self.max_transmissions * 4:
+                raise PrinterNotResponding(
+                    f"the printer refused sequence number {seq} {self._refusals} times in a row"
+                )
+            self._hold_until = now + min(self.timeout, 0.01 * 2 ** min(self._refusals, 16))
+        else:
+            self._refusals, self._refused_seq = 0, seq
         for packet in self._in_flight[:position]:
             if packet.state is PacketState.SENT:
                 packet.state = PacketState.RECEIVED

@@ -52,7 +52,8 @@ def test_a_second_real_reject_after_the_echoes_goes_back_again():
     window.poll(0.0)
     window.on_reject(0, 15, now=0.0)  # echo for packet 1
     window.on_reject(0, 15, now=0.0)  # the resent 0 was hit too
-    assert seqs(window.poll(0.0)) == [0, 1]
+    assert window.poll(0.0) == []  # refused twice with no progress: a short pause first
+    assert seqs(window.poll(window.next_deadline())) == [0, 1]
 
 
 def test_packets_before_a_reject_wait_for_their_ok_without_being_resent():
@@ -167,3 +168,34 @@ def test_a_long_command_at_the_head_buys_patience():
 )
 def test_which_commands_are_long(text, long):
     assert is_long_command(text) is long
+
+
+def test_a_packet_refused_again_and_again_backs_off_until_progress():
+    window, tickets = loaded(2, timeout=2.0)
+    window.poll(0.0)
+    window.on_reject(0, 15, now=0.0)  # buffer full
+    assert seqs(window.poll(0.0)) == [0, 1]
+    waits = []
+    now = 0.0
+    for _ in range(10):
+        window.on_reject(0, 15, now=now)  # still full (the echo of packet 1 is ignored)
+        window.on_reject(0, 15, now=now)
+        assert window.poll(now) == []
+        now = window.next_deadline()
+        waits.append(round(now - (waits and sum(waits) or 0.0), 3))
+        assert seqs(window.poll(now)) == [0, 1]
+    assert waits[:3] == [0.02, 0.04, 0.08] and max(waits) == 2.0
+    window.on_ack(0, 15, (), now)  # room again: back to full speed
+    window.on_reject(1, 15, now=now)
+    assert seqs(window.poll(now)) == [1]
+
+
+def test_a_printer_that_refuses_forever_is_given_up_on():
+    window, _ = loaded(1, max_transmissions=2)
+    now = 0.0
+    window.poll(now)
+    with pytest.raises(PrinterNotResponding, match="refused"):
+        for _ in range(100):
+            window.on_reject(0, 15, now=now)
+            now = window.next_deadline() or now
+            window.poll(now)

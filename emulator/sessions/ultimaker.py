@@ -41,6 +41,8 @@ class UltimakerSession:
         self._update_room()
 
     def feed(self, data: bytes) -> None:
+        if self.printer.halted:
+            return  # a killed printer reads nothing until it is reset
         # The receiver answers bad packets with the planner room as it is now.
         self._update_room()
         self.protocol.receive_data(data)

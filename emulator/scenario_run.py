@@ -1,0 +1,175 @@
+"""Run a scenario: the printer and our host client in one process, on simulated time.
+
+Both sides share trio's clock, here a MockClock that jumps ahead whenever everything waits,
+so a scenario full of timeouts runs in moments, yet every delay is honoured in order.
+"""
+
+import io
+import math
+from dataclasses import dataclass, field
+
+import trio
+import trio.testing
+
+from emulator.journal import Journal
+from emulator.link.memory import MemoryLink
+from emulator.printer.model import Printer, PrinterConfig
+from emulator.scenario import Scenario
+from emulator.server import PrinterServer, ServerConfig
+from emulator.verify import FAILURES, verify
+from host.client import ClientOptions, PrintSummary, connect, sole_exception
+from host.errors import HostError
+
+# A scenario that has not finished after a simulated day is stuck, whatever it does.
+SIMULATED_TIME_LIMIT = 24 * 3600.0
+
+
+@dataclass(frozen=True)
+class Check:
+    name: str
+    passed: bool
+    detail: str = ""
+
+
+@dataclass
+class ScenarioResult:
+    scenario: Scenario
+    outcome: str = "completed"  # completed | failed | stuck
+    error: str | None = None  # "ErrorClass: message" when the host gave up
+    summary: PrintSummary | None = None
+    journal: list[str] = field(default_factory=list)
+    transcript: list[str] = field(default_factory=list)  # what the printer said, line by line
+    printer_halted: bool = False
+    boots: int = 0
+    simulated_seconds: float = 0.0
+    checks: list[Check] = field(default_factory=list)
+
+    @property
+    def passed(self) -> bool:
+        return all(check.passed for check in self.checks)
+
+
+class _Recorder:
+    """The host's stream, keeping a copy of everything the printer sent."""
+
+    def __init__(self, stream) -> None:
+        self._stream = stream
+        self.received = bytearray()
+
+    async def send_all(self, data: bytes) -> None:
+        await self._stream.send_all(data)
+
+    async def receive_some(self, max_bytes: int = 4096) -> bytes:
+        data = await self._stream.receive_some(max_bytes)
+        self.received += data
+        return data
+
+
+def run_scenario(scenario: Scenario) -> ScenarioResult:
+    clock = trio.testing.MockClock(autojump_threshold=0)
+    return trio.run(_run, scenario, clock=clock)
+
+
+async def _run(scenario: Scenario) -> ScenarioResult:
+    result = ScenarioResult(scenario)
+    setup = scenario.printer
+    printer = Printer(PrinterConfig(extruders=setup.extruders))
+    journal_text = io.StringIO()
+    link = MemoryLink()
+    server = PrinterServer(link, printer, Journal(journal_text), ServerConfig(
+        protocol=setup.protocol, boot_delay=setup.boot_delay, advanced_ok=setup.advanced_ok,
+        faults=scenario.faults, conditions=setup.conditions, baud_from_host=setup.baud_from_host,
+    ))
+    options = ClientOptions(
+        window=scenario.host.window, timeout=scenario.host.timeout,
+        max_transmissions=scenario.host.retries,
+    )
+    start = trio.current_time()
+    async with trio.open_nursery() as nursery:
+        await nursery.start(server.run)
+        stream = _Recorder(link.open_host())
+        with trio.move_on_after(SIMULATED_TIME_LIMIT) as limit:
+            try:
+                async with connect(stream, scenario.host_protocol, options) as host:
+                    result.summary = await host.print_commands(scenario.job)
+            except BaseException as raised:  # noqa: BLE001 - the host's failure is the result
+                error = sole_exception(raised)
+                if not isinstance(error, HostError):
+                    raise
+                result.outcome = "failed"
+                result.error = f"{type(error).__name__}: {error}"
+        if limit.cancelled_caught:
+            result.outcome = "stuck"
+        nursery.cancel_scope.cancel()
+    result.simulated_seconds = trio.current_time() - start
+    result.journal = journal_text.getvalue().splitlines()
+    result.transcript = stream.received.decode("latin-1").replace("\r", "").split("\n")
+    result.printer_halted = printer.halted
+    result.boots = server.boots
+    result.checks = _check(scenario, result)
+    return result
+
+
+def _check(scenario: Scenario, result: ScenarioResult) -> list[Check]:
+    expect = scenario.expect
+    checks = []
+    if expect.outcome is not None:
+        checks.append(Check(f"outcome is {expect.outcome}", result.outcome == expect.outcome,
+                            result.error or result.outcome))
+    if expect.error is not None:
+        checks.append(Check(f"the host reports {expect.error}",
+                            result.error is not None and result.error.startswith(expect.error + ":"),
+                            result.error or "no error"))
+    if expect.exactly_once is not None:
+        verdict = verify(list(enumerate(scenario.job, start=1)), result.journal)
+        counts = ", ".join(f"{verdict.count(kind)} {kind.value}" for kind in FAILURES)
+        extras = [p.command for p in verdict.problems if p not in verdict.failures()]
+        checks.append(Check(
+            "every job command ran exactly once, in order" if expect.exactly_once
+            else "some job command did not run exactly once",
+            verdict.passed() == expect.exactly_once,
+            counts + (f"; host's own: {', '.join(sorted(set(extras)))}" if extras else ""),
+        ))
+    if expect.resends is not None:
+        resends = result.summary.resends if result.summary else None
+        least, most = expect.resends
+        checks.append(Check(f"host resends within {least}..{most}",
+                            resends is not None and least <= resends <= most, f"{resends}"))
+    if expect.printer_halted is not None:
+        checks.append(Check("the printer halted" if expect.printer_halted else "the printer did not halt",
+                            result.printer_halted == expect.printer_halted, str(result.printer_halted)))
+    for text in expect.lines_include:
+        seen = any(text in line for line in result.transcript)
+        checks.append(Check(f"the printer said {text!r}", seen))
+    for text in expect.lines_exclude:
+        seen = [line for line in result.transcript if text in line]
+        checks.append(Check(f"the printer never said {text!r}", not seen, seen[0] if seen else ""))
+    return checks
+
+
+def report(result: ScenarioResult) -> str:
+    scenario = result.scenario
+    summary = result.summary
+    lines = [f"{'PASS' if result.passed else 'FAIL'}  {scenario.name}  ({scenario.path})"]
+    if scenario.description:
+        lines.append(f"      {scenario.description}")
+    lines.append(
+        f"      {result.outcome}"
+        + (f": {result.error}" if result.error else "")
+        + f"; {len(result.journal)} commands executed of {len(scenario.job)} in the job"
+        + f"; {result.simulated_seconds:.1f} s simulated; printer booted {result.boots}x"
+    )
+    if summary is not None:
+        lines.append(
+            f"      host: {summary.packets_sent} sent, {summary.resends} resends, "
+            f"{summary.timeouts} timeouts, {summary.rejects} rejects, {summary.corrupt_frames} "
+            f"corrupt frames, {summary.unconfirmed} unconfirmed"
+        )
+    for check in result.checks:
+        mark = "ok  " if check.passed else "FAIL"
+        lines.append(f"      [{mark}] {check.name}" + (f": {check.detail}" if check.detail else ""))
+    return "\n".join(lines)
+
+
+def simulated(seconds: float) -> str:
+    return "never" if math.isinf(seconds) else f"{seconds:.1f} s"

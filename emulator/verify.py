@@ -1,0 +1,308 @@
+"""Did the printer run a job exactly once, in order? The job's commands against a journal.
+
+The journal is aligned with the job as two sequences, never compared as sets: jobs repeat
+commands (`G92 E0` every layer, identical moves), and only an alignment can say which of the
+repeats was lost or run twice. The alignment is a longest common subsequence, by Myers' diff
+algorithm (GNU diff's and git's). `difflib.SequenceMatcher` was the first candidate, but it
+grows matches from the longest contiguous block, which with repeated lines is no shortest edit:
+for the job `A B A A` run as `A A A` it reports line 1 reordered and line 2 missing instead of
+line 2 missing; and it is quadratic in how often lines repeat.
+
+Myers' time grows with the number of differences D (about D² steps), not with the length, and
+journal lines that are no job command at all (host polls, garbage) never enter the alignment,
+so D counts only real problems. Up to MAX_EDITS of them the alignment is exact. Beyond, lines
+that occur exactly once on both sides (most moves: their coordinates make them unique) are
+matched first, as anchors, as git's patience diff does, and each stretch between anchors is
+aligned exactly on its own; a stretch with more than MAX_EDITS differences (a journal of another
+job) is not aligned at all, its commands only paired by text, and the result says it is
+approximate.
+
+Pure: no I/O. `emulator.verify_cli` reads the files and prints the report.
+"""
+
+import bisect
+import re
+from collections import Counter, defaultdict, deque
+from collections.abc import Sequence
+from dataclasses import dataclass
+from enum import Enum
+
+from wire.gcode import strip_comment
+
+HOST_COMMANDS = frozenset({"M105", "M110", "M113", "M114", "M115", "M155", "M27", "M400"})
+"""Commands hosts send on their own: OctoPrint's `M110 N0`, `M115`, `M113 S2`, `M105` polls and
+final `M400`, printcore's `M110 N-1`. They only report or synchronise, so one the alignment
+cannot place is counted as the host's (an extra), even when the job has the same command."""
+
+MAX_EDITS = 1000
+"""Differences (missing and extra runs) one alignment may find before it gives up. Myers' time
+is about their square, and their number times the length when few lines are unique: 1000 in a
+100,000-line job of nothing but two alternating lines (the worst case) take about 3 s."""
+
+_COMMAND_WORD = re.compile(r"[A-Za-z]\d+")
+
+
+class Kind(Enum):
+    MISSING = "missing"  # a job command that never ran
+    DUPLICATED = "duplicated"  # a job command that ran again
+    REORDERED = "reordered"  # a job command that ran, but not in its place
+    EXTRA = "extra"  # a journal line that is not the job's: the host's own command, or garbage
+
+
+FAILURES = (Kind.MISSING, Kind.DUPLICATED, Kind.REORDERED)
+
+
+@dataclass(frozen=True)
+class Problem:
+    kind: Kind
+    command: str
+    job_line: int | None  # None for an extra
+    journal_line: int | None  # where it ran; None for a missing command
+
+
+@dataclass(frozen=True)
+class Verification:
+    problems: tuple[Problem, ...]  # in journal order; a missing command where it was due
+    job_commands: int
+    journal_commands: int
+    approximate: bool = False  # some stretch was too different to align exactly
+
+    def count(self, kind: Kind) -> int:
+        return sum(problem.kind is kind for problem in self.problems)
+
+    def failures(self, strict: bool = False) -> tuple[Problem, ...]:
+        """Extras are the host's business unless `strict`."""
+        return tuple(p for p in self.problems if strict or p.kind in FAILURES)
+
+    def passed(self, strict: bool = False) -> bool:
+        return not self.failures(strict)
+
+
+def job_commands(text: str) -> list[tuple[int, str]]:
+    """(line number, command) for each command, numbered as `fake-marlin-host` numbers them."""
+    return [(number, command) for number, line in enumerate(text.splitlines(), 1)
+            if (command := strip_comment(line))]
+
+
+def is_host_command(command: str) -> bool:
+    word = _COMMAND_WORD.match(command)
+    return word is not None and word.group().upper() in HOST_COMMANDS
+
+
+def verify(job: Sequence[tuple[int, str]], journal: Sequence[str]) -> Verification:
+    """Explain the journal as the job run once in order, plus as few problems as possible.
+
+    `job` holds (line number, command) pairs; `journal[k]` is journal line k + 1 (blank lines are
+    no commands). A journal line that is no job command is an extra. One that is runs a job
+    command: in its place if the alignment matches it, else one that was not run in its place
+    (reordered), else one that already ran (duplicated); host commands are extras instead, since
+    hosts send them on their own. A job command run nowhere is missing.
+    """
+    texts = [command for _, command in job]
+    in_job = set(texts)
+    ran = [(number, command) for number, line in enumerate(journal, 1) if (command := line.strip())]
+    runs = [(number, command) for number, command in ran if command in in_job]
+    found = [  # ((journal position, job index), problem)
+        ((number, -1), Problem(Kind.EXTRA, command, None, number))
+        for number, command in ran if command not in in_job
+    ]
+    pairs, approximate = _align(texts, [command for _, command in runs])
+
+    ran_at: list[int | None] = [None] * len(texts)  # journal line that ran job command i
+    in_place = [False] * len(runs)
+    for i, k in pairs:
+        ran_at[i] = runs[k][0]
+        in_place[k] = True
+    due_after = {}  # job index not run in place -> journal line after which it was due
+    waiting = defaultdict(deque)  # command -> those job indices, in job order
+    last = 0
+    for i, command in enumerate(texts):
+        if ran_at[i] is None:
+            due_after[i] = last
+            if not is_host_command(command):
+                waiting[command].append(i)
+        else:
+            last = ran_at[i]
+
+    again = []
+    for k, (number, command) in enumerate(runs):
+        if in_place[k]:
+            continue
+        if is_host_command(command):
+            found.append(((number, -1), Problem(Kind.EXTRA, command, None, number)))
+        elif waiting[command]:
+            i = waiting[command].popleft()
+            ran_at[i] = number
+            found.append(((number, i), Problem(Kind.REORDERED, command, job[i][0], number)))
+        else:
+            again.append((number, command))
+    for i, last in due_after.items():
+        if ran_at[i] is None:
+            found.append(((last + 0.5, i), Problem(Kind.MISSING, texts[i], job[i][0], None)))
+
+    # A repeat is charged to the run of the same command just before it. With none before, it
+    # ran first, and the first run after it counts as the repeat instead.
+    history = defaultdict(list)  # command -> sorted (journal line, job index) of its runs
+    for i, number in enumerate(ran_at):
+        if number is not None:
+            history[texts[i]].append((number, i))
+    for done in history.values():
+        done.sort()
+    for number, command in again:
+        done = history[command]
+        before = bisect.bisect_left(done, (number,))
+        if before:
+            i = done[before - 1][1]
+        else:
+            first, i = done[0]
+            done[0] = (number, i)
+            number = first
+        found.append(((number, i), Problem(Kind.DUPLICATED, command, job[i][0], number)))
+
+    found.sort(key=lambda entry: entry[0])
+    return Verification(
+        problems=tuple(problem for _, problem in found),
+        job_commands=len(texts),
+        journal_commands=len(ran),
+        approximate=approximate,
+    )
+
+
+def _align(a: list[str], b: list[str]) -> tuple[list[tuple[int, int]], bool]:
+    """Pairs (i, j) with a[i] == b[j], increasing in both, as many as can be found; and
+    whether some stretch was too different to align."""
+    n, m = len(a), len(b)
+    # A common prefix is matched as Myers would. Not a common suffix: Myers matches as early as
+    # it can, so that of two runs of a command the later is the repeat.
+    start = 0
+    while start < n and start < m and a[start] == b[start]:
+        start += 1
+    pairs = [(i, i) for i in range(start)]
+    whole, approximate = _align_stretch(a[start:], b[start:])
+    if not approximate:
+        return pairs + [(start + x, start + y) for x, y in whole], False
+    # Too many differences to align in one go: split the work at lines unique on both sides.
+    approximate = False
+    i0, j0 = start, start
+    anchors = [(start + i, start + j) for i, j in _anchors(a[start:], b[start:])]
+    for i, j in anchors + [(n, m)]:
+        between, rough = _align_stretch(a[i0:i], b[j0:j])
+        pairs += [(i0 + x, j0 + y) for x, y in between]
+        approximate |= rough
+        pairs.append((i, j))
+        i0, j0 = i + 1, j + 1
+    return pairs[:-1], approximate
+
+
+def _anchors(a: list[str], b: list[str]) -> list[tuple[int, int]]:
+    """The longest in-order run of lines that occur exactly once in a and once in b."""
+    count_a, count_b = Counter(a), Counter(b)
+    where_b = {line: j for j, line in enumerate(b) if count_b[line] == 1}
+    candidates = [(i, where_b[line]) for i, line in enumerate(a)
+                  if count_a[line] == 1 and line in where_b]
+    # Longest increasing subsequence of j (patience sorting, with back links).
+    tails: list[int] = []  # tails[r]: candidate ending the best run of length r + 1
+    tail_js: list[int] = []
+    back: list[int | None] = []
+    for c, (_, j) in enumerate(candidates):
+        r = bisect.bisect_left(tail_js, j)
+        back.append(tails[r - 1] if r else None)
+        if r == len(tails):
+            tails.append(c)
+            tail_js.append(j)
+        else:
+            tails[r] = c
+            tail_js[r] = j
+    run = []
+    c = tails[-1] if tails else None
+    while c is not None:
+        run.append(candidates[c])
+        c = back[c]
+    return run[::-1]
+
+
+def _align_stretch(a: list[str], b: list[str]) -> tuple[list[tuple[int, int]], bool]:
+    """A longest common subsequence by the cheaper exact method, or ([], True) if too costly."""
+    if not a or not b:
+        return [], False
+    surplus = Counter(a)
+    surplus.subtract(b)
+    edits = sum(map(abs, surplus.values()))  # at least this many: each surplus line is one
+    if edits > MAX_EDITS:
+        return [], True
+    if len(a) * len(b) <= edits * edits // 2:  # Myers would take at least edits² / 2 steps
+        return _table(a, b), False
+    pairs = _myers(a, b, MAX_EDITS)
+    return ([], True) if pairs is None else (pairs, False)
+
+
+def _table(a: list[str], b: list[str]) -> list[tuple[int, int]]:
+    """Pairs of a longest common subsequence by the textbook table, matching as early as it can:
+    the cheaper method when one side is short (a job's layer against a journal's few lines)."""
+    n, m = len(a), len(b)
+    rows = [[0] * (m + 1) for _ in range(n + 1)]  # rows[i][j]: the length for a[i:] and b[j:]
+    for i in range(n - 1, -1, -1):
+        row, below = rows[i], rows[i + 1]
+        for j in range(m - 1, -1, -1):
+            row[j] = below[j + 1] + 1 if a[i] == b[j] else max(below[j], row[j + 1])
+    pairs = []
+    i = j = 0
+    while i < n and j < m:
+        if a[i] == b[j]:
+            pairs.append((i, j))
+            i += 1
+            j += 1
+        elif rows[i + 1][j] >= rows[i][j + 1]:
+            i += 1
+        else:
+            j += 1
+    return pairs
+
+
+def _myers(a: list[str], b: list[str], max_edits: int) -> list[tuple[int, int]] | None:
+    """Pairs of a longest common subsequence (Myers 1986, "An O(ND) difference algorithm"), or
+    None when more than `max_edits` deletions and insertions separate a and b."""
+    n, m = len(a), len(b)
+    if abs(n - m) > max_edits:
+        return None
+    limit = min(max_edits, n + m)
+    offset = limit + 1
+    v = [0] * (2 * offset + 1)  # v[offset + k]: furthest x reached on diagonal k = x - y
+    trace = []  # before each round d: v on diagonals -d-1 .. d+1
+    for d in range(limit + 1):
+        trace.append(v[offset - d - 1:offset + d + 2])
+        for k in range(-d, d + 1, 2):
+            if k == -d or (k != d and v[offset + k - 1] < v[offset + k + 1]):
+                x = v[offset + k + 1]  # down: b[y - 1] inserted
+            else:
+                x = v[offset + k - 1] + 1  # right: a[x - 1] deleted
+            y = x - k
+            while x < n and y < m and a[x] == b[y]:
+                x += 1
+                y += 1
+            v[offset + k] = x
+            if x >= n and y >= m:
+                return _backtrack(trace, n, m)
+    return None
+
+
+def _backtrack(trace: list[list[int]], n: int, m: int) -> list[tuple[int, int]]:
+    pairs = []
+    x, y = n, m
+    for d in range(len(trace) - 1, -1, -1):
+        v = trace[d]
+        k = x - y
+        zero = d + 1  # where diagonal 0 is in this round's slice
+        if k == -d or (k != d and v[zero + k - 1] < v[zero + k + 1]):
+            previous = k + 1
+        else:
+            previous = k - 1
+        px = v[zero + previous]
+        py = px - previous
+        while x > px and y > py:
+            x -= 1
+            y -= 1
+            pairs.append((x, y))
+        x, y = px, py
+    pairs.reverse()
+    return pairs

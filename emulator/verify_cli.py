@@ -1,0 +1,142 @@
+"""`fake-marlin verify JOB JOURNAL`: did the printer run the job exactly once, in order?
+
+Exit codes: 0 it did, 1 it did not (missing, duplicated or reordered commands; with --strict
+also extra ones), 2 a usage problem or a file that cannot be read as UTF-8 text.
+"""
+
+import argparse
+import json
+import os
+import sys
+from collections import Counter
+
+from emulator.verify import FAILURES, Kind, Problem, Verification, job_commands, verify
+
+PROG = "fake-marlin verify"
+
+
+class InputError(Exception):
+    pass
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog=PROG,
+        description="Check a --journal against the G-code job it should have run: report job "
+        "commands that are missing, duplicated or reordered, and extra commands the host sent "
+        "on its own (polls, line numbering: not failures unless --strict).",
+    )
+    parser.add_argument("job", metavar="JOB.gcode", help="the G-code file the host streamed")
+    parser.add_argument("journal", metavar="JOURNAL", help="the file fake-marlin --journal wrote")
+    parser.add_argument("--strict", action="store_true", help="extra commands fail the check too")
+    parser.add_argument("--json", action="store_true", help="print every problem as JSON instead")
+    parser.add_argument(
+        "--limit", type=_count, default=20, metavar="N",
+        help="problems to list (default 20; 0 lists all)",
+    )
+    return parser
+
+
+def _count(text: str) -> int:
+    if not text.isdigit():
+        raise argparse.ArgumentTypeError(f"must be a whole number, got {text!r}")
+    return int(text)
+
+
+def read_text(path: str) -> str:
+    """The file as text, or InputError saying in one line why it cannot be."""
+    try:
+        with open(path, "rb") as file:
+            raw = file.read()
+    except OSError as error:
+        raise InputError(f"cannot read {path}: {error.strerror or error}") from None
+    try:
+        return raw.decode("utf-8-sig")
+    except UnicodeDecodeError as error:
+        line = raw.count(b"\n", 0, error.start) + 1
+        raise InputError(f"{path}:{line}: not UTF-8 text (byte 0x{raw[error.start]:02x})") from None
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        job = job_commands(read_text(args.job))
+        journal = read_text(args.journal).split("\n")
+    except InputError as error:
+        print(f"{PROG}: {error}", file=sys.stderr)
+        return 2
+    result = verify(job, journal)
+    try:
+        if args.json:
+            print(json.dumps(_as_json(result, args), indent=2))
+        else:
+            print(report(result, args.strict, args.limit))
+        sys.stdout.flush()
+    except BrokenPipeError:  # `| head` has read enough; the verdict is still the exit code
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+    return 0 if result.passed(args.strict) else 1
+
+
+def report(result: Verification, strict: bool = False, limit: int = 20) -> str:
+    """A few lines a person reads: the verdict, then the first `limit` failures."""
+    failures = result.failures(strict)
+    kinds = FAILURES + (Kind.EXTRA,) if strict else FAILURES
+    if failures:
+        lines = ["FAILED: " + ", ".join(f"{result.count(kind)} {kind.value}" for kind in kinds)]
+    else:
+        lines = [f"OK: each of the {result.job_commands} job commands ran once, in order"]
+    shown = failures if limit == 0 else failures[:limit]
+    lines += ["  " + _describe(problem) for problem in shown]
+    if len(shown) < len(failures):
+        lines.append(f"  ... and {len(failures) - len(shown)} more (--limit 0 lists all)")
+    extras = Counter(p.command for p in result.problems if p.kind is Kind.EXTRA)
+    if extras and not strict:
+        common = ", ".join(f"{count} x {command}" for command, count in extras.most_common(5))
+        more = f", {len(extras) - 5} other kinds" if len(extras) > 5 else ""
+        lines.append(
+            f"{sum(extras.values())} extra (sent by the host, not failures without --strict): "
+            f"{common}{more}"
+        )
+    if result.approximate:
+        lines.append(
+            "note: part of the journal differs from the job in too many places to align (is it "
+            "this job's journal?); the problems listed there are a rough guess"
+        )
+    return "\n".join(lines)
+
+
+def _describe(problem: Problem) -> str:
+    command = problem.command
+    match problem.kind:
+        case Kind.MISSING:
+            return f"missing     job line {problem.job_line} never ran: {command}"
+        case Kind.DUPLICATED:
+            return (f"duplicated  job line {problem.job_line} ran again at journal line "
+                    f"{problem.journal_line}: {command}")
+        case Kind.REORDERED:
+            return (f"reordered   job line {problem.job_line} ran out of order at journal line "
+                    f"{problem.journal_line}: {command}")
+        case Kind.EXTRA:
+            return f"extra       journal line {problem.journal_line}, not the job's: {command}"
+
+
+def _as_json(result: Verification, args: argparse.Namespace) -> dict:
+    return {
+        "ok": result.passed(args.strict),
+        "strict": args.strict,
+        "job": args.job,
+        "journal": args.journal,
+        "job_commands": result.job_commands,
+        "journal_commands": result.journal_commands,
+        "counts": {kind.value: result.count(kind) for kind in Kind},
+        "approximate": result.approximate,
+        "problems": [
+            {"kind": p.kind.value, "job_line": p.job_line, "journal_line": p.journal_line,
+             "command": p.command}
+            for p in result.problems
+        ],
+    }
+
+
+if __name__ == "__main__":
+    sys.exit(main())

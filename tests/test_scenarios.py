@@ -1,0 +1,66 @@
+"""Every shipped scenario is a test: the printer with its faults, our host, the expectations."""
+
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from emulator.scenario import ScenarioError, load
+from emulator.scenario_run import report, run_scenario
+
+SCENARIOS = sorted((Path(__file__).parent.parent / "scenarios").glob("*.toml"))
+
+
+def test_at_least_twelve_scenarios_ship():
+    assert len(SCENARIOS) >= 12
+
+
+@pytest.mark.parametrize("path", SCENARIOS, ids=[p.stem for p in SCENARIOS])
+def test_shipped_scenario(path):
+    scenario = load(path)
+    assert scenario.expect != type(scenario.expect)(), "a scenario must expect something"
+    result = run_scenario(scenario)
+    assert result.passed, report(result)
+
+
+@pytest.mark.parametrize(
+    "text, message",
+    [
+        ('[[fault]]\nkind = "melt"', "[[fault]] #1: kind: must be one of"),
+        ('[printer]\nprotocol = "x"', "[printer] protocol: must be one of"),
+        ('[printer]\nprotocol = "marlin"\n[expect]\nresends = [3, 1]', "[expect] resends: must be [least, most]"),
+        ('[printer]\nprotocol = "marlin"\nlatency_ms = -1', "[printer] latency_ms: must be at least 0"),
+        ('[printer]\nprotocol = "marlin"\n[[fault]]\nkind = "drop"\nevery = 3',
+         "[[fault]] #1: direction: is missing"),
+        ('[printer]\nprotocol = "marlin"\ncolour = 1', "[printer] colour: is not a key this table knows"),
+        ('[job]\nfile = "missing.gcode"\n[host]\nprotocol = "marlin"', "[job] file: cannot read"),
+        ("name = [", "not valid TOML"),
+        ('[printer]\nextruders = "two"', "[printer] extruders: must be a whole number"),
+    ],
+)
+def test_bad_scenario_files_name_the_key_and_the_problem(tmp_path, text, message):
+    path = tmp_path / "bad.toml"
+    path.write_text(text)
+    with pytest.raises(ScenarioError) as refused:
+        load(path)
+    assert str(refused.value).startswith(f"{path}: ") and message in str(refused.value)
+
+
+def test_the_cli_runs_a_scenario_and_refuses_a_bad_one(tmp_path):
+    fake_marlin = Path(sys.executable).parent / "fake-marlin"
+    good = subprocess.run([fake_marlin, "scenario", "run", SCENARIOS[0]], capture_output=True, text=True, timeout=120)
+    assert good.returncode == 0, good.stdout + good.stderr
+    assert good.stdout.startswith("PASS") and good.stdout.rstrip().endswith("scenarios: 1 passed, 0 failed")
+    (tmp_path / "bad.toml").write_text('[printer]\nprotocol = "nope"')
+    bad = subprocess.run([fake_marlin, "scenario", "run", tmp_path], capture_output=True, text=True, timeout=60)
+    assert bad.returncode == 2 and "[printer] protocol: must be one of" in bad.stderr
+    assert "Traceback" not in bad.stderr
+
+
+def test_a_failing_expectation_fails_the_run(tmp_path):
+    path = tmp_path / "wrong.toml"
+    path.write_text('[printer]\nprotocol = "ultimaker"\n[job]\nmoves = 20\n[expect]\nresends = [5, 9]\n')
+    result = run_scenario(load(path))
+    assert not result.passed
+    assert "[FAIL] host resends within 5..9: 0" in report(result)
