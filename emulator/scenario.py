@@ -45,6 +45,7 @@ class HostSetup:
     window: int = 3
     timeout: float = 2.0
     retries: int = 8
+    disconnect_after: int | None = None  # drop the port after this many commands, then reopen
 
 
 @dataclass(frozen=True)
@@ -56,6 +57,8 @@ class Expectations:
     printer_halted: bool | None = None
     lines_include: tuple[str, ...] = ()
     lines_exclude: tuple[str, ...] = ()
+    missing: int | None = None  # job commands that never ran
+    duplicated_at_most: int | None = None
 
 
 @dataclass(frozen=True)
@@ -254,6 +257,7 @@ def _host(table: _Reader, printer: PrinterSetup) -> HostSetup:
         window=table.get("window", int, 3, minimum=1, maximum=32),
         timeout=float(table.get("timeout", (int, float), 2.0, minimum=0.01)),
         retries=table.get("retries", int, 8, minimum=1),
+        disconnect_after=table.get("disconnect_after", int, None, minimum=1),
     )
     if host.protocol is None and printer.protocol == "auto":
         table.fail("protocol", "is needed when the printer detects its protocol (printer.protocol = auto)")
@@ -279,6 +283,8 @@ def _expect(table: _Reader) -> Expectations:
         printer_halted=table.get("printer_halted", bool, None),
         lines_include=tuple(include),
         lines_exclude=tuple(exclude),
+        missing=table.get("missing", int, None, minimum=0),
+        duplicated_at_most=table.get("duplicated_at_most", int, None, minimum=0),
     )
     table.finish()
     return expect

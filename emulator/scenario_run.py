@@ -16,7 +16,7 @@ from emulator.link.memory import MemoryLink
 from emulator.printer.model import Printer, PrinterConfig
 from emulator.scenario import Scenario
 from emulator.server import PrinterServer, ServerConfig
-from emulator.verify import FAILURES, verify
+from emulator.verify import FAILURES, Kind, verify
 from host.client import ClientOptions, PrintSummary, connect, sole_exception
 from host.errors import HostError
 
@@ -52,9 +52,9 @@ class ScenarioResult:
 class _Recorder:
     """The host's stream, keeping a copy of everything the printer sent."""
 
-    def __init__(self, stream) -> None:
+    def __init__(self, stream, received: bytearray | None = None) -> None:
         self._stream = stream
-        self.received = bytearray()
+        self.received = bytearray() if received is None else received
 
     async def send_all(self, data: bytes) -> None:
         await self._stream.send_all(data)
@@ -90,8 +90,14 @@ async def _run(scenario: Scenario) -> ScenarioResult:
         stream = _Recorder(link.open_host())
         with trio.move_on_after(SIMULATED_TIME_LIMIT) as limit:
             try:
+                job = list(scenario.job)
+                if scenario.host.disconnect_after is not None:
+                    job = await _print_until_disconnect(
+                        stream, scenario, options, job, scenario.host.disconnect_after
+                    )
+                    stream = _Recorder(link.open_host(), stream.received)
                 async with connect(stream, scenario.host_protocol, options) as host:
-                    result.summary = await host.print_commands(scenario.job)
+                    result.summary = await host.print_commands(job)
             except BaseException as raised:  # noqa: BLE001 - the host's failure is the result
                 error = sole_exception(raised)
                 if not isinstance(error, HostError):
@@ -108,6 +114,22 @@ async def _run(scenario: Scenario) -> ScenarioResult:
     result.boots = server.boots
     result.checks = _check(scenario, result)
     return result
+
+
+async def _print_until_disconnect(stream, scenario: Scenario, options, job: list[str], after: int):
+    """Print until `after` commands are acknowledged, then drop the port with packets still in
+    flight, as a host that crashes or loses its cable does. Returns what it must still send:
+    everything not acknowledged, since it cannot know what else the printer ran."""
+    async with connect(stream, scenario.host_protocol, options) as host:
+        for command in job:
+            await host.submit(command)
+            if host.completed >= after:
+                break
+        with trio.move_on_after(60):
+            while host.completed < after:
+                await trio.sleep(0.01)
+        done = host.completed
+    return job[done:]
 
 
 def _check(scenario: Scenario, result: ScenarioResult) -> list[Check]:
@@ -130,6 +152,14 @@ def _check(scenario: Scenario, result: ScenarioResult) -> list[Check]:
             verdict.passed() == expect.exactly_once,
             counts + (f"; host's own: {', '.join(sorted(set(extras)))}" if extras else ""),
         ))
+    if expect.missing is not None or expect.duplicated_at_most is not None:
+        verdict = verify(list(enumerate(scenario.job, start=1)), result.journal)
+        missing, duplicated = verdict.count(Kind.MISSING), verdict.count(Kind.DUPLICATED)
+        if expect.missing is not None:
+            checks.append(Check(f"{expect.missing} job commands never ran", missing == expect.missing, str(missing)))
+        if expect.duplicated_at_most is not None:
+            checks.append(Check(f"at most {expect.duplicated_at_most} job commands ran twice",
+                                duplicated <= expect.duplicated_at_most, str(duplicated)))
     if expect.resends is not None:
         resends = result.summary.resends if result.summary else None
         least, most = expect.resends
