@@ -22,9 +22,10 @@ class LineFaults:
 
     bit_error_rate: float = 0.0  # chance that any one bit is flipped
     drop_rate: float = 0.0  # chance that any one byte is lost
-    # Chance that a line gets one damaged character, never its end: what a checksum catches.
-    # (A damaged line end leaves the printer waiting for the rest of the line, which hangs
-    # hosts with no `ok` timeout, such as printcore; bit-errors includes that case.)
+    # Chance that a line gets one damaged character, never its end: mostly what a checksum
+    # catches. (A damaged leading `N` makes a bare line, which Marlin runs unchecked. A damaged
+    # line end leaves the printer waiting for the rest of the line, which hangs hosts with no
+    # `ok` timeout, such as printcore; bit-errors includes that case.)
     line_corruption_rate: float = 0.0
 
     @property

@@ -15,7 +15,7 @@ from host.client import (
     open_printer,
     sole_exception,
 )
-from host.codecs.ultimaker import Line, LineKind
+from host.codecs import marlin, ultimaker
 from host.errors import HostError, RemoteError
 
 
@@ -39,10 +39,14 @@ def build_parser() -> argparse.ArgumentParser:
     common = argparse.ArgumentParser(add_help=False)
     common.add_argument("--protocol", choices=PROTOCOLS, default="ultimaker")
     common.add_argument("--baud", type=_positive(int), default=DEFAULT_BAUDRATE)
-    common.add_argument("--window", type=_positive(int), default=3, help="packets in flight (default 3)")
+    common.add_argument(
+        "--window", type=_positive(int), default=3,
+        help="Ultimaker packets in flight (default 3); Marlin always has one line in flight",
+    )
     common.add_argument(
         "--timeout", type=_positive(float), default=2.0,
-        help="seconds before an unanswered packet is sent again (default 2)",
+        help="seconds of printer silence before an unanswered packet is sent again "
+        "(Marlin: before the host asks which line the printer has) (default 2)",
     )
     common.add_argument(
         "--long-timeout", type=_positive(float), default=300.0,
@@ -51,7 +55,10 @@ def build_parser() -> argparse.ArgumentParser:
     common.add_argument(
         "--retries", type=_positive(int), default=8, help="transmissions of one packet before giving up"
     )
-    common.add_argument("-v", "--verbose", action="store_true", help="also show the printer's LOG lines")
+    common.add_argument(
+        "-v", "--verbose", action="store_true",
+        help="also show the printer's LOG lines (Marlin: echo, busy, temperature and other lines)",
+    )
     commands = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     print_parser = commands.add_parser("print", parents=[common], help="stream a G-code file")
     print_parser.add_argument("port", help="serial device, e.g. /dev/ttyACM0 or the emulator's pty")
@@ -94,13 +101,20 @@ class ProgressBar:
         sys.stderr.write(f"{end}{self.line()}  timeouts: {self.stats.timeouts}  {elapsed:.1f} s\n")
 
 
+# Marlin lines shown without -v: the rest (echo, busy, temperatures...) is routine.
+_MARLIN_SHOWN = frozenset({marlin.LineKind.ERROR, marlin.LineKind.HALTED, marlin.LineKind.ACTION})
+
+
 def _line_printer(verbose: bool):
-    def show(line: Line) -> None:
-        if line.kind is LineKind.LOG and not verbose:
-            return
-        # Start from a clean line in case a progress bar is being drawn there.
-        start = "\r\033[K" if sys.stderr.isatty() else ""
-        print(f"{start}printer: {line.kind.value}:{line.text}", file=sys.stderr)
+    def show(line: ultimaker.Line | marlin.Line) -> None:
+        if isinstance(line, marlin.Line):
+            shown, text = verbose or line.kind in _MARLIN_SHOWN, line.text
+        else:
+            shown, text = verbose or line.kind is not ultimaker.LineKind.LOG, f"{line.kind.value}:{line.text}"
+        if shown:
+            # Start from a clean line in case a progress bar is being drawn there.
+            start = "\r\033[K" if sys.stderr.isatty() else ""
+            print(f"{start}printer: {text}", file=sys.stderr)
 
     return show
 
@@ -115,7 +129,7 @@ def _options(args) -> ClientOptions:
 
 
 async def _print(args) -> int:
-    job = load_job(args.file)
+    job = load_job(args.file, args.protocol)
     async with open_printer(args.port, args.protocol, args.baud, _options(args), _line_printer(args.verbose)) as printer:
         bar = ProgressBar(len(job), printer.stats)
         summary = await printer.print_commands([c.text for c in job], bar.update)

@@ -25,6 +25,10 @@ class PrinterReset(RemoteError):
     """The printer restarted mid-session; what it had queued is gone."""
 
 
+class PrinterHalted(RemoteError):
+    """The firmware stopped itself (kill(): M112, thermal runaway, ...) until it is reset."""
+
+
 class UsageError(HostError):
     """The caller asked for something that cannot be done."""
 

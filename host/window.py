@@ -102,6 +102,7 @@ class GoBackNWindow:
         self._echo_seq: int | None = None  # the `r` NN whose echoes we expect
         self._echoes_left = 0
         self._synchronised = False  # has the printer answered with a sequence number of ours?
+        self._expired: list[Ticket] = []  # completed by a timer, not by a frame: for take_completed()
         self._refusals = 0  # rejects of the same packet in a row, with no progress between
         self._refused_seq: int | None = None
         self._hold_until = -math.inf  # no (re)transmission before this
@@ -184,7 +185,7 @@ class GoBackNWindow:
         while self._in_flight:
             head = self._in_flight[0]
             if head.state is PacketState.RECEIVED and self._due(head) <= now:
-                self._complete(1, (), confirmed=False)
+                self._expired += self._complete(1, (), confirmed=False)
                 continue
             break
         for index, packet in enumerate(self._in_flight):
@@ -201,6 +202,11 @@ class GoBackNWindow:
     def _go_back(self, index: int) -> None:
         for packet in self._in_flight[index:]:
             packet.needs_transmit = True
+
+    def take_completed(self) -> list[Ticket]:
+        """Tickets a timer completed during poll() (an `o` lost for good), oldest first."""
+        done, self._expired = self._expired, []
+        return done
 
     # -- what the printer says -----------------------------------------------------------
     def on_ack(self, seq: int, room: int, response: tuple[str, ...], now: float) -> list[Ticket]:

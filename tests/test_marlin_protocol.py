@@ -113,6 +113,12 @@ def test_the_checksum_covers_a_paren_comment_as_the_host_sent_it():
     assert protocol.data_to_send() == b""
 
 
+def test_a_nul_ends_the_line_as_in_a_c_string():
+    protocol = MarlinProtocol()
+    assert feed(protocol, b"\x00\x00N1 G28*18\n") == []  # read as an empty line
+    assert feed(protocol, b"M105\x00junk\n") == [LineReceived("M105", None)]
+
+
 def test_an_overlong_line_is_cut_at_max_cmd_size():
     protocol = MarlinProtocol()
     (event,) = feed(protocol, b"M117 " + b"x" * 200 + b"\n")

@@ -58,6 +58,7 @@ async def test_a_lost_ok_for_the_last_command_is_recovered_by_timeout(autojump_c
             summary = await host.print_commands(job)
     assert printer.journal == job
     assert stream.dropped == 1
+    assert summary.commands == len(job)  # the unconfirmed one counts as done, progress too
     assert summary.timeouts == 1 and summary.resends == 1 and summary.unconfirmed == 1
     assert 12.0 <= summary.elapsed < 13.0
 

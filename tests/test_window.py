@@ -73,6 +73,7 @@ def test_a_received_packet_whose_ok_is_lost_completes_unconfirmed():
     assert not tickets[0].done
     window.poll(10.6)
     assert tickets[0].done and not tickets[0].confirmed and window.idle
+    assert window.take_completed() == tickets and window.take_completed() == []
 
 
 def test_timeout_resends_the_oldest_unanswered_packet_and_all_after_it():

@@ -172,7 +172,8 @@ class MarlinProtocol:
             self._state = InputState.EOL_COMMENT
 
     def _line_done(self) -> LineReceived | LineRejected | None:
-        raw = self._line.decode("ascii", "replace")
+        # The firmware's line buffer is a C string: a NUL ends it there.
+        raw = self._line.split(b"\x00", 1)[0].decode("ascii", "replace")
         self._line.clear()
         self._state = InputState.NORMAL
         self._escaped = False

@@ -1,0 +1,254 @@
+"""Host side of Marlin's ASCII protocol: encode numbered lines, parse what the printer says.
+
+Sans-IO. What Marlin 2.1 says is listed in PROTOCOLS.md section 6; hosts that read it (OctoPrint,
+printcore) are in HOSTS.md. Every line the printer sends becomes exactly one event, whatever its
+bytes: damaged lines come out as data (or as a line error whose number is unknown), never as an
+exception.
+"""
+
+import re
+from dataclasses import dataclass
+from enum import Enum
+
+from host.errors import CommandError
+
+MAX_LINE = 4096  # a line longer than this is noise; it is cut so memory stays bounded
+# Marlin keeps at most MAX_CMD_SIZE - 1 = 95 characters of a line. "N<9 digits> " and "*255"
+# take 15 of them, so a command of 80 characters fits until line number 10^9.
+MAX_COMMAND = 80
+MAX_WIRE_LINE = 95
+
+# The probe: a numbered line the printer always refuses and never runs. "M110" in a line makes
+# Marlin skip the line-number check, and the missing checksum then draws
+# `Error:No Checksum with line number, Last Line: <L>`, `Resend: <L+1>`, `ok`: the printer's
+# line counter, read without side effects. No single bit flip can make it acceptable: it would
+# need a `*` (none of its characters is one flip from it) or a changed "M110" (then N0 is no
+# successor of any counter >= 0 but -1, and still has no checksum).
+# It starts with a line feed. Without it, a probe sent after a line whose end was lost joins
+# that line, and Marlin, finding "M110" in the joined line, takes its line number from the
+# probe's N0 while the checksum at the end still fits the first line: it runs the line and sets
+# its counter to 0. The line feed ends the partial line first (which is then run or refused on
+# its own merits); an empty line is ignored.
+PROBE = b"\nN0 M110\n"
+
+
+def xor_checksum(data: bytes) -> int:
+    checksum = 0
+    for byte in data:
+        checksum ^= byte
+    return checksum
+
+
+def check_command(command: str) -> str:
+    """`command` as it can go on a numbered line, or CommandError saying why it cannot."""
+    if not command or command != command.strip():
+        raise CommandError(f"{command!r}: a command is text without surrounding white space")
+    if len(command) > MAX_COMMAND:
+        raise CommandError(f"{command!r}: {len(command)} characters; at most {MAX_COMMAND} fit on a line")
+    for index, char in enumerate(command):
+        if not " " <= char <= "~":
+            raise CommandError(f"{command!r}: character {index} is not printable ASCII")
+    # `;` starts a comment and `\` escapes in Marlin's reader, and the last `*` starts the
+    # checksum: each would make the printer check a different line than the host summed.
+    for char, meaning in ((";", "a comment"), ("\\", "an escape"), ("*", "the checksum")):
+        if char in command:
+            raise CommandError(f"{command!r}: {char!r} starts {meaning} on a Marlin line")
+    if "M110" in command.upper():
+        raise CommandError(f"{command!r}: M110 sets the line number, which the host keeps itself")
+    return command
+
+
+def encode_line(number: int, command: str) -> bytes:
+    """`N<number> <command>*<checksum>` and a line feed; the caller has checked the command."""
+    body = f"N{number} {command}".encode("ascii")
+    line = body + b"*%d" % xor_checksum(body)
+    if len(line) > MAX_WIRE_LINE:
+        raise CommandError(f"{command!r} does not fit on line {number}")
+    return line + b"\n"
+
+
+def encode_sync(command: str) -> bytes:
+    """The host's own M110 line, after a line feed for the reason PROBE has one."""
+    return b"\n" + encode_line(0, command)
+
+
+def encode_bare(command: str) -> bytes:
+    """A line without number or checksum: Marlin runs it unchecked, so only for people typing."""
+    return command.encode("ascii") + b"\n"
+
+
+# -- what the printer says ----------------------------------------------------------------
+@dataclass(frozen=True)
+class Ok:
+    """`ok`: a command finished (or, after Resend, the printer is ready again)."""
+
+    text: str = ""  # what M105 says on the ok line itself; ADVANCED_OK's fields taken out
+    line_number: int | None = None  # ADVANCED_OK: ` N<line>`
+    planner_free: int | None = None  # ADVANCED_OK: ` P<n>`
+    queue_free: int | None = None  # ADVANCED_OK: ` B<n>`
+
+
+@dataclass(frozen=True)
+class ResendRequest:
+    """`Resend: <n>` or `rs <n>`: send again from line n. None if the number was unreadable."""
+
+    line: int | None
+    text: str
+
+
+class LineErrorKind(Enum):
+    LINE_NUMBER = "line number"
+    CHECKSUM = "checksum"
+    NO_CHECKSUM = "no checksum"
+    OTHER = "other"  # another firmware's wording of a line error
+
+
+@dataclass(frozen=True)
+class LineError:
+    """An `Error:` about the line itself; Resend and ok follow. `last_line`: the printer's
+    counter, the last line number it accepted (None if unreadable)."""
+
+    kind: LineErrorKind
+    last_line: int | None
+    text: str
+
+
+class LineKind(Enum):
+    DATA = "data"  # anything else: a command's response (M114, M115, file lists), or noise
+    ECHO = "echo"
+    BUSY = "busy"  # `echo:busy: processing`, `busy: paused for user`: alive, still working
+    WAIT = "wait"  # the command queue is empty (Marlin's NO_TIMEOUTS)
+    START = "start"  # the firmware booted: `start`, or its reset reason
+    REPORT = "report"  # temperatures or position the printer reports on its own (M155, M154,
+    # and M109/M190 while they wait, with ` W:`): never a command's response
+    ACTION = "action"  # `//action:...` for the host
+    ERROR = "Error"  # an Error: line that is no line error and no halt
+    HALTED = "halted"  # kill(): `Error:Printer halted. kill() called!` or a kill reason
+
+
+@dataclass(frozen=True)
+class Line:
+    kind: LineKind
+    text: str  # the whole line, as the printer said it
+
+
+Event = Ok | ResendRequest | LineError | Line
+
+_OK = re.compile(r"ok(?:\s+(.*))?")
+_ADVANCED_OK = re.compile(r"(?:N(-?\d+))?\s*(?:P(\d+)\s+B(\d+))?\s*")
+_RESEND = re.compile(r"(?:resend|rs)\b:?\s*(?:N:?\s*)?(\d+)?", re.IGNORECASE)
+_LAST_LINE = re.compile(r"last\s*line:?\s*(-?\d+)", re.IGNORECASE)
+_BUSY = re.compile(r"(?:echo:)?\s*busy:", re.IGNORECASE)
+_TEMPERATURE = re.compile(r"\s*(?:T\d*|B|C):\s*-?\d")
+_POSITION_REPORT = re.compile(r"X:\S+ Y:\S+ Z:\S+ E:\S+")  # M154's; M114 adds " Count ..."
+_RESET_REASON = re.compile(
+    r"echo:\s*(?:PowerUp|External Reset|Brown out Reset|Watchdog Reset|Software Reset)\s*$"
+)
+# OctoPrint's words for a line error, and Marlin's three.
+_LINE_ERRORS = (
+    ("line number is not last line number+1", LineErrorKind.LINE_NUMBER),
+    ("checksum mismatch", LineErrorKind.CHECKSUM),
+    ("no checksum", LineErrorKind.NO_CHECKSUM),
+    ("checksum", LineErrorKind.OTHER),
+    ("line number", LineErrorKind.OTHER),
+    ("linenumber", LineErrorKind.OTHER),
+    ("format error", LineErrorKind.OTHER),
+    ("expected line", LineErrorKind.OTHER),
+    ("last line", LineErrorKind.OTHER),
+)
+# What Marlin prints when kill() stops it, and the reasons it prints just before.
+_HALT_WORDS = (
+    "printer halted", "kill() called", "system stopped", "thermal runaway",
+    "maxtemp", "mintemp", "heating failed",
+)
+
+
+def parse_line(text: str) -> Event:
+    """One line from the printer (without its line end) as an event."""
+    match = _OK.fullmatch(text)
+    if match:
+        return _parse_ok(match[1] or "")
+    match = _RESEND.match(text)
+    if match:
+        return ResendRequest(int(match[1]) if match[1] else None, text)
+    lowered = text.lower()
+    if lowered.startswith("error:"):
+        return _parse_error(text, lowered)
+    if text == "start" or _RESET_REASON.match(text):
+        return Line(LineKind.START, text)
+    if text == "wait":
+        return Line(LineKind.WAIT, text)
+    if _BUSY.match(text):
+        return Line(LineKind.BUSY, text)
+    if lowered.startswith("echo:"):
+        return Line(LineKind.ECHO, text)
+    if text.startswith("//action:"):
+        return Line(LineKind.ACTION, text)
+    if lowered.startswith("fatal:"):
+        return Line(LineKind.HALTED, text)
+    if _TEMPERATURE.match(text) or _POSITION_REPORT.fullmatch(text):
+        return Line(LineKind.REPORT, text)
+    return Line(LineKind.DATA, text)
+
+
+def _parse_ok(rest: str) -> Ok:
+    advanced = _ADVANCED_OK.fullmatch(rest)
+    if rest and advanced and (advanced[1] or advanced[2]):
+        return Ok(
+            "",
+            int(advanced[1]) if advanced[1] else None,
+            int(advanced[2]) if advanced[2] else None,
+            int(advanced[3]) if advanced[3] else None,
+        )
+    return Ok(rest.strip())
+
+
+def is_halt_message(text: str) -> bool:
+    """An Error: text saying kill() stopped the firmware (any Marlin, UltimakerMarlin too)."""
+    lowered = text.lower()
+    return any(word in lowered for word in _HALT_WORDS)
+
+
+def _parse_error(text: str, lowered: str) -> Event:
+    if is_halt_message(text):
+        return Line(LineKind.HALTED, text)
+    for words, kind in _LINE_ERRORS:
+        if words in lowered:
+            last = _LAST_LINE.search(text)
+            return LineError(kind, int(last[1]) if last else None, text)
+    return Line(LineKind.ERROR, text)
+
+
+def is_garbled(raw: bytes) -> bool:
+    """Bytes Marlin never sends (it speaks printable ASCII): the line was damaged on the way."""
+    return any(not (0x20 <= byte <= 0x7E or byte == 0x09) for byte in raw)
+
+
+class LineParser:
+    """Splits what arrives into lines and parses each; counts the lines that came damaged."""
+
+    def __init__(self) -> None:
+        self._buffer = bytearray()
+        self.garbled = 0
+
+    def receive_data(self, data: bytes) -> None:
+        self._buffer += data
+
+    def next_event(self) -> Event | None:
+        while True:
+            end = self._buffer.find(b"\n")
+            if end < 0:
+                if len(self._buffer) <= MAX_LINE:
+                    return None
+                end = MAX_LINE
+                raw = bytes(self._buffer[:end])
+                del self._buffer[:end]
+            else:
+                raw = bytes(self._buffer[:end])
+                del self._buffer[: end + 1]
+            raw = raw.rstrip(b"\r")
+            if not raw.strip():
+                continue
+            if is_garbled(raw):
+                self.garbled += 1
+            return parse_line(raw.decode("ascii", "replace").strip())
