@@ -13,6 +13,7 @@ from emulator.printer import failures
 from emulator.printer.model import Printer
 from emulator.sessions.detect import Detected, DetectingSession
 from emulator.sessions.marlin import MarlinSession
+from emulator.sessions.stk500 import Stk500Session
 from emulator.sessions.ultimaker import UltimakerSession
 
 PROTOCOLS = ("auto", "marlin", "ultimaker")
@@ -94,6 +95,11 @@ class PrinterServer:
         protocol = protocol.value if isinstance(protocol, Detected) else protocol
         if protocol == "auto":
             return DetectingSession(lambda detected: self._make_session(detected, reason))
+        if protocol == "stk500":
+            # LEAVE starts the firmware, whose protocol the bytes after it choose.
+            return Stk500Session(self._send, lambda: DetectingSession(
+                lambda detected: self._make_session(detected, reason), bootloader=False
+            ))
         if protocol == "marlin":
             return MarlinSession(
                 self.printer, self.journal, self._send, self.config.advanced_ok, reason,
