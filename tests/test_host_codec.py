@@ -6,7 +6,6 @@ from hypothesis import strategies as st
 
 from emulator.protocols.ultimaker import CommandReceived, UltimakerProtocol
 from host.codecs.ultimaker import (
-    MAX_LINE,
     Ack,
     CorruptFrame,
     FrameParser,
@@ -17,6 +16,7 @@ from host.codecs.ultimaker import (
     check_command,
     encode_command,
 )
+from host.codecs.lines import MAX_LINE
 from host.errors import CommandError
 from wire.ultimaker import frame_body
 

@@ -38,3 +38,17 @@ async def run_command(
     if executed and (not killed_while_running or parse(executed).code == "M112"):
         journal.record(executed)
     return reply
+
+
+def hold_queue_full(protocol, seconds: float, nursery: trio.Nursery, resume=lambda: None) -> None:
+    """The printer's command queue takes nothing for `seconds` (a queue-full fault), then the
+    protocol reads on (`resume`)."""
+    size = protocol.queue_size
+    protocol.queue_size = 0
+
+    async def reopen() -> None:
+        await trio.sleep(seconds)
+        protocol.queue_size = size
+        resume()
+
+    nursery.start_soon(reopen)

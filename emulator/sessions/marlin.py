@@ -10,7 +10,7 @@ from emulator.journal import Journal
 from emulator.printer.gcode import parse
 from emulator.printer.model import SELF_REPORTING, Printer, Reply
 from emulator.protocols.marlin import EmergencyCommand, LineReceived, MarlinProtocol, Ok, Output
-from emulator.sessions.driver import run_command
+from emulator.sessions.driver import hold_queue_full, run_command
 
 BUSY_INTERVAL = 2.0  # HOST_KEEPALIVE default; M113 changes it
 
@@ -67,15 +67,7 @@ class MarlinSession:
 
     def block_queue(self, seconds: float, nursery: trio.Nursery) -> None:
         """The command queue stays full for a while: the firmware stops reading its input."""
-        size = self.protocol.queue_size
-        self.protocol.queue_size = 0
-
-        async def reopen() -> None:
-            await trio.sleep(seconds)
-            self.protocol.queue_size = size
-            self.feed(b"")
-
-        nursery.start_soon(reopen)
+        hold_queue_full(self.protocol, seconds, nursery, resume=lambda: self.feed(b""))
 
     def feed(self, data: bytes) -> None:
         if self.printer.halted:

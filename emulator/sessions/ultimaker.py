@@ -16,7 +16,7 @@ from emulator.protocols.ultimaker import (
     RoomChanged,
     UltimakerProtocol,
 )
-from emulator.sessions.driver import run_command
+from emulator.sessions.driver import hold_queue_full, run_command
 
 
 class UltimakerSession:
@@ -66,14 +66,7 @@ class UltimakerSession:
 
     def block_queue(self, seconds: float, nursery: trio.Nursery) -> None:
         """The command queue stays full for a while: packets are refused with `buffer full`."""
-        size = self.protocol.queue_size
-        self.protocol.queue_size = 0
-
-        async def reopen() -> None:
-            await trio.sleep(seconds)
-            self.protocol.queue_size = size
-
-        nursery.start_soon(reopen)
+        hold_queue_full(self.protocol, seconds, nursery)
 
     async def _execute_commands(self) -> None:
         async for received in self._queue_out:

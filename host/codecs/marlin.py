@@ -10,9 +10,9 @@ import re
 from dataclasses import dataclass
 from enum import Enum
 
+from host.codecs.lines import LineBuffer
 from host.errors import CommandError
 
-MAX_LINE = 4096  # a line longer than this is noise; it is cut so memory stays bounded
 # Marlin keeps at most MAX_CMD_SIZE - 1 = 95 characters of a line. "N<9 digits> " and "*255"
 # take 15 of them, so a command of 80 characters fits until line number 10^9.
 MAX_COMMAND = 80
@@ -228,27 +228,18 @@ class LineParser:
     """Splits what arrives into lines and parses each; counts the lines that came damaged."""
 
     def __init__(self) -> None:
-        self._buffer = bytearray()
+        self._lines = LineBuffer()
         self.garbled = 0
 
     def receive_data(self, data: bytes) -> None:
-        self._buffer += data
+        self._lines.receive_data(data)
 
     def next_event(self) -> Event | None:
-        while True:
-            end = self._buffer.find(b"\n")
-            if end < 0:
-                if len(self._buffer) <= MAX_LINE:
-                    return None
-                end = MAX_LINE
-                raw = bytes(self._buffer[:end])
-                del self._buffer[:end]
-            else:
-                raw = bytes(self._buffer[:end])
-                del self._buffer[: end + 1]
+        while (raw := self._lines.next_line()) is not None:
             raw = raw.rstrip(b"\r")
             if not raw.strip():
                 continue
             if is_garbled(raw):
                 self.garbled += 1
             return parse_line(raw.decode("ascii", "replace").strip())
+        return None

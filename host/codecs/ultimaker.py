@@ -4,10 +4,10 @@ import re
 from dataclasses import dataclass
 from enum import Enum
 
+from host.codecs.lines import LineBuffer
 from host.errors import CommandError
 from wire import ultimaker as wire
 
-MAX_LINE = 4096  # a line longer than this is noise; it is cut so memory stays bounded
 _FRAME = re.compile(r"([orq])([0-9A-F]{2})([0-9A-F]{2})([0-9A-F]{2})")
 
 
@@ -86,26 +86,17 @@ Event = Ack | Reject | RoomInfo | CorruptFrame | Line
 
 class FrameParser:
     def __init__(self) -> None:
-        self._buffer = bytearray()
+        self._lines = LineBuffer()
 
     def receive_data(self, data: bytes) -> None:
-        self._buffer += data
+        self._lines.receive_data(data)
 
     def next_event(self) -> Event | None:
-        while True:
-            end = self._buffer.find(b"\n")
-            if end < 0:
-                if len(self._buffer) <= MAX_LINE:
-                    return None
-                end = MAX_LINE
-                raw = bytes(self._buffer[:end])
-                del self._buffer[:end]
-            else:
-                raw = bytes(self._buffer[:end])
-                del self._buffer[: end + 1]
+        while (raw := self._lines.next_line()) is not None:
             text = raw.decode("ascii", "replace").strip("\r")
             if text:
                 return parse_line(text)
+        return None
 
 
 def parse_line(text: str) -> Event:
