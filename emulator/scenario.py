@@ -204,6 +204,8 @@ def parse_fault_table(entry, where: str) -> FaultRule | tuple[str, str, float]:
         trigger = Trigger(**trigger_values, times=times)
     except (TypeError, ValueError) as error:
         table.fail("trigger", str(error))
+    if trigger.at is not None and fault_kind in (FaultKind.DROP, FaultKind.DUPLICATE, FaultKind.TRUNCATE):
+        table.fail("at", f"a {kind} fault acts on a unit: trigger it with nth, every, pattern or probability")
     rule = FaultRule(
         kind=fault_kind,
         trigger=trigger,

@@ -37,6 +37,8 @@ def test_shipped_scenario(path):
         ('[job]\nfile = "missing.gcode"\n[host]\nprotocol = "marlin"', "[job] file: cannot read"),
         ("name = [", "not valid TOML"),
         ('[printer]\nextruders = "two"', "[printer] extruders: must be a whole number"),
+        ('[printer]\nprotocol = "marlin"\n[[fault]]\nkind = "drop"\ndirection = "to-host"\nat = 3',
+         "[[fault]] #1: at: a drop fault acts on a unit"),
     ],
 )
 def test_bad_scenario_files_name_the_key_and_the_problem(tmp_path, text, message):
