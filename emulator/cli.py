@@ -11,7 +11,7 @@ from pathlib import Path
 import trio
 
 from emulator.clock import ScaledClock
-from emulator.control import Controller, serve_control
+from emulator.control import Controller, check_control_path, serve_control
 from emulator.faults import FaultConfig, parse_fault
 from emulator.scenario import PrinterSetup, ScenarioError
 from emulator.scenario import load as load_scenario
@@ -180,6 +180,10 @@ def main(argv: list[str] | None = None) -> int:
             faults = parse_fault(spec, faults)
         except ValueError as error:
             parser.error(f"argument --fault: {error}")
+    if args.sd_dir and not os.path.isdir(args.sd_dir):
+        parser.error(f"argument --sd-dir: no directory {args.sd_dir}")
+    if args.control and (problem := check_control_path(args.control)):
+        parser.error(f"argument --control: {problem}")
     # Until trio takes over the signals (and in case one lands before it does), a SIGTERM or
     # SIGHUP must unwind like Ctrl-C so that the symlink is removed.
     signal.signal(signal.SIGTERM, _interrupt)

@@ -13,6 +13,7 @@ A request the channel cannot carry out gets {"ok": false, "error": "..."}; the c
 
 import json
 import os
+import stat
 
 import trio
 
@@ -110,8 +111,21 @@ class Controller:
         return {}
 
 
+def check_control_path(path: str) -> str | None:
+    """Why the control socket cannot be made at `path`, or None if it can."""
+    directory = os.path.dirname(os.path.abspath(path))
+    if not os.path.isdir(directory):
+        return f"no directory {directory}"
+    if os.path.lexists(path) and not stat.S_ISSOCK(os.lstat(path).st_mode):
+        return f"{path} exists and is not a socket; refusing to replace it"
+    return None
+
+
 async def serve_control(path: str, controller: Controller, task_status=trio.TASK_STATUS_IGNORED) -> None:
-    if os.path.exists(path):
+    problem = check_control_path(path)
+    if problem:
+        raise ControlError(problem)
+    if os.path.lexists(path):
         os.unlink(path)  # a socket left by an earlier run
     sock = trio.socket.socket(trio.socket.AF_UNIX, trio.socket.SOCK_STREAM)
     await sock.bind(path)

@@ -173,6 +173,31 @@ def test_bad_flags_get_usage_errors(args, message):
     assert result.returncode == 2 and message in result.stderr
 
 
+def test_bad_paths_for_the_sd_card_and_the_control_socket_are_refused(tmp_path):
+    precious = tmp_path / "notes.txt"
+    precious.write_text("keep me")
+    for args, message in [
+        (["--sd-dir", str(tmp_path / "nowhere")], "--sd-dir: no directory"),
+        (["--control", str(precious)], "is not a socket; refusing to replace it"),
+        (["--control", str(tmp_path / "no" / "such.sock")], "--control: no directory"),
+    ]:
+        result = subprocess.run([BIN / "fake-marlin", *args], capture_output=True, text=True, timeout=10)
+        assert result.returncode == 2 and message in result.stderr, result.stderr
+        assert "Traceback" not in result.stderr
+    assert precious.read_text() == "keep me"
+
+
+def test_the_control_channel_works_from_another_process(emulator, tmp_path):
+    from emulator.control_client import ControlClient
+
+    printer = emulator("--protocol", "marlin", "--control", str(tmp_path / "printer.control"))
+    with ControlClient(str(tmp_path / "printer.control")) as control:
+        control.set_temperature("T0", 99.5)
+        assert control.state()["temperatures"]["T0"]["actual"] > 99
+    result = host("send", printer.link, "M105", "--protocol", "marlin")
+    assert result.stdout.startswith("T:9")
+
+
 def test_an_existing_file_at_the_link_path_is_not_replaced(tmp_path):
     precious = tmp_path / "printer"
     precious.write_text("keep me")
