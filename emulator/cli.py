@@ -136,6 +136,13 @@ class _Symlink:
         if self.path and os.path.islink(self.path) and os.readlink(self.path) == self.target:
             os.unlink(self.path)
 
+    def retarget(self, target: str) -> None:
+        """The pty came back under a new name (a `disconnect` fault): the link follows it."""
+        if self.path and os.path.islink(self.path) and os.readlink(self.path) == self.target:
+            os.unlink(self.path)
+            os.symlink(target, self.path)
+        self.target = target
+
 
 async def _serve_until_signalled(server: PrinterServer, path: str, control: str | None) -> None:
     with trio.open_signal_receiver(signal.SIGINT, signal.SIGTERM, signal.SIGHUP) as signals:
@@ -195,6 +202,12 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     link = PtyLink()
     symlink = _Symlink(args.link, link.path)
+
+    def new_path(path: str) -> None:
+        symlink.retarget(path)
+        print(path, flush=True)  # the line came back on a new pty: say where, as at start
+
+    link.on_new_path = new_path
     try:
         symlink.create()
     except OSError as error:

@@ -19,6 +19,7 @@ class FaultKind(Enum):
     TRUNCATE = "truncate"
     GARBAGE = "garbage"
     STALL = "stall"
+    DISCONNECT = "disconnect"
     # In the printer.
     FIRMWARE_ERROR = "firmware-error"
     THERMAL_RUNAWAY = "thermal-runaway"
@@ -32,7 +33,8 @@ class FaultKind(Enum):
 
 
 LINK_KINDS = frozenset(
-    {FaultKind.DROP, FaultKind.DUPLICATE, FaultKind.TRUNCATE, FaultKind.GARBAGE, FaultKind.STALL}
+    {FaultKind.DROP, FaultKind.DUPLICATE, FaultKind.TRUNCATE, FaultKind.GARBAGE, FaultKind.STALL,
+     FaultKind.DISCONNECT}
 )
 
 
@@ -76,7 +78,7 @@ class FaultRule:
     kind: FaultKind
     trigger: Trigger
     direction: str | None = None  # "to-printer" or "to-host", for link faults
-    seconds: float = 0.0  # stall, planner-stall, queue-full: how long
+    seconds: float = 0.0  # stall, disconnect, planner-stall, queue-full: how long
     text: str = ""  # firmware-error: the message; garbage: what to send (default: noise)
     length: int = 0  # garbage: how many bytes; truncate: how many to keep (default: half)
     heater: str = "T0"  # T0.., or B for the bed

@@ -43,10 +43,11 @@ class FaultConfig:
 
 @dataclass(frozen=True)
 class Segment:
-    """Bytes for the other side, after a pause (a stall)."""
+    """Bytes for the other side, after a pause (a stall); then perhaps the line hangs up."""
 
     data: bytes = b""
     pause: float = 0.0
+    hang_up: float | None = None  # seconds until the line comes back
 
 
 _KINDS = {
@@ -127,7 +128,7 @@ class FaultLayer:
         else:
             segments = [Segment(data)]
         return [
-            Segment(self._damage(segment.data, direction, faults), segment.pause)
+            Segment(self._damage(segment.data, direction, faults), segment.pause, segment.hang_up)
             for segment in segments
         ]
 
@@ -135,7 +136,7 @@ class FaultLayer:
         segments = [Segment()]
         for unit in self._units(data, direction):
             text = unit.decode("latin-1")
-            out, pause = unit, 0.0
+            out, pause, hang_up = unit, 0.0, None
             for index, rule in rules:
                 if not unit.strip(b"\r\n") or not self.plan.fires(index, text):
                     continue
@@ -150,11 +151,15 @@ class FaultLayer:
                     out = (rule.text.encode("latin-1") or self.plan.noise(rule.length or 48)) + out
                 elif kind is FaultKind.STALL:
                     pause += rule.seconds
+                elif kind is FaultKind.DISCONNECT:
+                    hang_up = rule.seconds
             if pause:
                 segments.append(Segment(pause=pause))
             last = segments[-1]
-            segments[-1] = Segment(last.data + out, last.pause)
-        return [s for s in segments if s.data or s.pause]
+            segments[-1] = Segment(last.data + out, last.pause, hang_up)
+            if hang_up is not None:
+                break  # nothing more gets through a line that hangs up
+        return [s for s in segments if s.data or s.pause or s.hang_up is not None]
 
     def _units(self, data: bytes, direction: Direction) -> list[bytes]:
         """Complete units in arrival order; a unit not yet complete waits for its rest."""

@@ -46,6 +46,7 @@ class HostSetup:
     timeout: float = 2.0
     retries: int = 8
     disconnect_after: int | None = None  # drop the port after this many commands, then reopen
+    reconnect_after: float | None = None  # when the line hangs up: reopen after this long
 
 
 @dataclass(frozen=True)
@@ -260,6 +261,7 @@ def _host(table: _Reader, printer: PrinterSetup) -> HostSetup:
         timeout=float(table.get("timeout", (int, float), 2.0, minimum=0.01)),
         retries=table.get("retries", int, 8, minimum=1),
         disconnect_after=table.get("disconnect_after", int, None, minimum=1),
+        reconnect_after=table.get("reconnect_after", (int, float), None, minimum=0),
     )
     if host.protocol is None and printer.protocol == "auto":
         table.fail("protocol", "is needed when the printer detects its protocol (printer.protocol = auto)")

@@ -18,7 +18,7 @@ from emulator.scenario import Scenario
 from emulator.server import PrinterServer, ServerConfig
 from emulator.verify import FAILURES, Kind, verify
 from host.client import ClientOptions, PrintSummary, connect, sole_exception
-from host.errors import HostError
+from host.errors import ConnectionLost, HostError
 
 # A scenario that has not finished after a simulated day is stuck, whatever it does.
 SIMULATED_TIME_LIMIT = 24 * 3600.0
@@ -96,8 +96,7 @@ async def _run(scenario: Scenario) -> ScenarioResult:
                         stream, scenario, options, job, scenario.host.disconnect_after
                     )
                     stream = _Recorder(link.open_host(), stream.received)
-                async with connect(stream, scenario.host_protocol, options) as host:
-                    result.summary = await host.print_commands(job)
+                result.summary = await _print_reconnecting(link, stream, scenario, options, job)
             except BaseException as raised:  # noqa: BLE001 - the host's failure is the result
                 error = sole_exception(raised)
                 if not isinstance(error, HostError):
@@ -114,6 +113,24 @@ async def _run(scenario: Scenario) -> ScenarioResult:
     result.boots = server.boots
     result.checks = _check(scenario, result)
     return result
+
+
+async def _print_reconnecting(link, stream, scenario: Scenario, options, job: list[str]):
+    """Print the job; when the line hangs up and the scenario says so, wait, reopen the port and
+    send again everything not acknowledged (the host cannot know what else ran)."""
+    while True:
+        host = None
+        try:
+            async with connect(stream, scenario.host_protocol, options) as host:
+                return await host.print_commands(job)
+        except BaseException as raised:  # noqa: BLE001 - only a lost line is retried
+            if scenario.host.reconnect_after is None or not isinstance(sole_exception(raised), ConnectionLost):
+                raise
+        job = job[host.completed if host is not None else 0:]
+        await trio.sleep(scenario.host.reconnect_after)
+        while not link.connected:
+            await trio.sleep(0.1)
+        stream = _Recorder(link.open_host(), stream.received)
 
 
 async def _print_until_disconnect(stream, scenario: Scenario, options, job: list[str], after: int):

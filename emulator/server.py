@@ -118,6 +118,17 @@ class PrinterServer:
     def _carry(self, segments: list[Segment], pipe: Pipe) -> None:
         for segment in segments:
             pipe.put(segment.data, segment.pause)
+            if segment.hang_up is not None:
+                self._nursery.start_soon(self._hang_up, segment.hang_up)
+
+    async def _hang_up(self, seconds: float) -> None:
+        """The line is dead for `seconds`; the printer itself runs on, talking to nobody."""
+        self.link.hang_up()
+        self._to_printer.clear()
+        self._to_host.clear()
+        self.faults.new_connection()
+        await trio.sleep(seconds)
+        self.link.reconnect()
 
     def _feed_session(self, data: bytes) -> None:
         # Bytes that arrive while the printer is still booting are lost, as on a real board.
@@ -188,3 +199,5 @@ class PrinterServer:
             elif rule.kind is FaultKind.STALL:
                 pipe = self._to_printer if rule.direction == "to-printer" else self._to_host
                 pipe.put(b"", rule.seconds)
+            elif rule.kind is FaultKind.DISCONNECT:
+                self._nursery.start_soon(self._hang_up, rule.seconds)

@@ -206,3 +206,30 @@ def test_an_existing_file_at_the_link_path_is_not_replaced(tmp_path):
     )
     assert result.returncode == 2 and "not a symlink" in result.stderr
     assert precious.read_text() == "keep me"
+
+
+def test_a_line_that_hangs_up_comes_back_on_a_new_pty_behind_the_same_link(tmp_path):
+    scenario = tmp_path / "unplug.toml"
+    scenario.write_text(
+        '[printer]\nprotocol = "marlin"\n'
+        '[[fault]]\nkind = "disconnect"\ndirection = "to-host"\nat = 2.0\nseconds = 1.0\n'
+    )
+    link = tmp_path / "printer"
+    printer = subprocess.Popen(
+        [BIN / "fake-marlin", "--scenario", scenario, "--link", link],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )
+    try:
+        first = printer.stdout.readline().strip()
+        write_job(tmp_path / "long.gcode", 3000)
+        cut = host("print", link, tmp_path / "long.gcode", "--protocol", "marlin", timeout=60)
+        assert cut.returncode == 1 and "lost the connection" in cut.stderr
+        second = printer.stdout.readline().strip()  # announced when the line comes back
+        assert first.startswith("/dev/pts/") and second.startswith("/dev/pts/")  # may be reused
+        assert os.path.realpath(link) == second
+        again = host("send", link, "M105", "--protocol", "marlin")
+        assert again.returncode == 0 and again.stdout.startswith("T:")
+    finally:
+        printer.send_signal(signal.SIGINT)
+        printer.wait(timeout=10)
+    assert printer.returncode == 0 and not os.path.lexists(link)

@@ -109,3 +109,9 @@ def test_triggers_reject_nonsense():
     plan = FaultPlan((FaultRule(FaultKind.REBOOT, Trigger(probability=0.5)),), seed=9)
     again = FaultPlan((FaultRule(FaultKind.REBOOT, Trigger(probability=0.5)),), seed=9)
     assert [plan.fires(0, "x") for _ in range(50)] == [again.fires(0, "x") for _ in range(50)]
+
+
+def test_a_disconnect_lets_its_unit_through_and_nothing_after():
+    rule = FaultRule(FaultKind.DISCONNECT, Trigger(nth=2), direction="to-host", seconds=3.0)
+    segments = FaultLayer(FaultConfig(rules=(rule,))).to_host(b"a\nb\nc\n")
+    assert [(s.data, s.hang_up) for s in segments] == [(b"a\nb\n", 3.0)]

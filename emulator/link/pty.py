@@ -33,24 +33,57 @@ class HostOpened:
 
 class PtyLink:
     def __init__(self) -> None:
-        self._master, self._slave = os.openpty()
-        tty.setraw(self._slave)
-        fcntl.ioctl(self._master, termios.TIOCPKT, struct.pack("i", 1))
-        os.set_blocking(self._master, False)
-        self.path = os.ttyname(self._slave)
+        self._open_pty()
+        self.connected = True
+        self._reconnected = trio.Event()
+        self.on_new_path = lambda path: None  # told the new path when the line comes back
         self._pending = bytearray()
         self._output_ready = trio.Event()
         self._emptied = trio.Event()
         self.dropped_bytes = 0
 
+    def _open_pty(self) -> None:
+        self._master, self._slave = os.openpty()
+        tty.setraw(self._slave)
+        fcntl.ioctl(self._master, termios.TIOCPKT, struct.pack("i", 1))
+        os.set_blocking(self._master, False)
+        self.path = os.ttyname(self._slave)
+
+    def hang_up(self) -> None:
+        """The line goes dead, as when a USB cable is pulled: the host's port fails, and the
+        device is gone (it comes back under a new name, as a re-plugged adapter does)."""
+        if not self.connected:
+            return
+        self.connected = False
+        self._reconnected = trio.Event()
+        self.discard_output()
+        trio.lowlevel.notify_closing(self._master)
+        self.close()
+
+    def reconnect(self) -> None:
+        if self.connected:
+            return
+        self._open_pty()
+        self.connected = True
+        self._reconnected.set()
+        self._output_ready.set()
+        self.on_new_path(self.path)
+
     async def receive(self) -> bytes | HostOpened:
         """The next chunk of bytes from the host, or a HostOpened notice."""
         while True:
-            await trio.lowlevel.wait_readable(self._master)
-            try:
-                packet = os.read(self._master, 4096)
-            except BlockingIOError:
+            if not self.connected:
+                await self._reconnected.wait()
                 continue
+            try:
+                await trio.lowlevel.wait_readable(self._master)
+                packet = os.read(self._master, 4096)
+            except (BlockingIOError, trio.ClosedResourceError):
+                continue
+            except OSError:
+                if not self.connected:
+                    continue
+                raise
             if not packet:
                 continue
             if packet[0] == _TIOCPKT_DATA:
@@ -61,7 +94,7 @@ class PtyLink:
 
     def send(self, data: bytes) -> None:
         """Queue bytes for the host; never blocks the printer."""
-        if not data:
+        if not data or not self.connected:
             return
         self._pending += data
         overflow = len(self._pending) - _MAX_PENDING_OUTPUT
@@ -72,6 +105,8 @@ class PtyLink:
 
     def host_baud(self) -> int | None:
         """The baud rate the host set on the port (a pty itself never slows down)."""
+        if not self.connected:
+            return None
         try:
             raw = fcntl.ioctl(self._slave, _TCGETS2, bytes(_TERMIOS2.size))
         except OSError:
@@ -92,16 +127,18 @@ class PtyLink:
 
     async def run_writer(self) -> None:
         while True:
-            if not self._pending:
+            if not self._pending or not self.connected:
                 self._output_ready = trio.Event()
                 await self._output_ready.wait()
                 continue
-            await trio.lowlevel.wait_writable(self._master)
             try:
+                await trio.lowlevel.wait_writable(self._master)
                 written = os.write(self._master, self._pending)
-            except BlockingIOError:
+            except (BlockingIOError, trio.ClosedResourceError):
                 continue
             except OSError as error:
+                if not self.connected:
+                    continue
                 if error.errno != errno.EIO:
                     raise
                 print(f"fake-marlin: write to pty failed: {error}", file=sys.stderr)
