@@ -102,8 +102,9 @@ def build_parser() -> argparse.ArgumentParser:
         help="take the printer's settings and faults from a scenario file (its job is not run)",
     )
     parser.add_argument(
-        "--baud", metavar="RATE|host", type=_baud,
-        help="pace the line at this baud rate, or at the rate the host sets (`host`); default: no pacing",
+        "--baud", metavar="RATE", type=_baud, nargs="?", const="host",
+        help="pace the line: each byte costs 10/RATE s each way; without RATE (or `host`), at the "
+        "rate the host set on the port; default: no pacing",
     )
     parser.add_argument("--latency-ms", type=_non_negative_float, default=0.0, metavar="MS",
                         help="delay each way, in milliseconds (default 0)")
