@@ -4,6 +4,7 @@ It sits below every protocol state machine, so the printer model never sees a fa
 commands that survive it. Damage is drawn from a seeded generator: a run can be repeated.
 """
 
+import dataclasses
 import random
 from dataclasses import dataclass, field
 from enum import Enum
@@ -50,7 +51,7 @@ class Segment:
     hang_up: float | None = None  # seconds until the line comes back
 
 
-_KINDS = {
+RATE_KINDS = {  # the kinds of damage given as a rate, and the LineFaults field each sets
     "bit-errors": "bit_error_rate",
     "drop-bytes": "drop_rate",
     "corrupt-lines": "line_corruption_rate",
@@ -68,18 +69,22 @@ def parse_fault(spec: str, config: FaultConfig) -> FaultConfig:
         raise ValueError(
             f"{spec!r}: the direction must be {' or '.join(d.value for d in Direction)}"
         ) from None
-    if kind not in _KINDS:
-        raise ValueError(f"{spec!r}: the kind must be one of {', '.join(_KINDS)}")
+    if kind not in RATE_KINDS:
+        raise ValueError(f"{spec!r}: the kind must be one of {', '.join(RATE_KINDS)}")
     try:
         rate = float(value)
     except ValueError:
         raise ValueError(f"{spec!r}: {value!r} is not a number") from None
     if not 0.0 <= rate <= 1.0:
         raise ValueError(f"{spec!r}: a rate is between 0 and 1")
-    attribute = "to_printer" if direction is Direction.TO_PRINTER else "to_host"
-    faults = getattr(config, attribute)
-    faults = LineFaults(**{**faults.__dict__, _KINDS[kind]: rate})
-    return FaultConfig(**{**config.__dict__, attribute: faults})
+    return with_rate(config, direction.value, RATE_KINDS[kind], rate)
+
+
+def with_rate(config: FaultConfig, direction: str, field_name: str, rate: float) -> FaultConfig:
+    """`config` with one rate of damage (a LineFaults field) set for one direction."""
+    side = "to_printer" if direction == Direction.TO_PRINTER.value else "to_host"
+    faults = dataclasses.replace(getattr(config, side), **{field_name: rate})
+    return dataclasses.replace(config, **{side: faults})
 
 
 @dataclass
@@ -103,11 +108,8 @@ class FaultLayer:
         self.plan.add(rule)
         self._link_rules = {d: self.plan.link_rules(d.value) for d in Direction}
 
-    def set_rate(self, direction: str, attribute: str, rate: float) -> None:
-        key = "to_printer" if direction == Direction.TO_PRINTER.value else "to_host"
-        faults = getattr(self.config, key)
-        faults = LineFaults(**{**faults.__dict__, attribute: rate})
-        self.config = FaultConfig(**{**self.config.__dict__, key: faults})
+    def set_rate(self, direction: str, field_name: str, rate: float) -> None:
+        self.config = with_rate(self.config, direction, field_name, rate)
 
     def new_connection(self) -> None:
         """A host (re)opened the port: half-received units belong to nobody."""

@@ -4,15 +4,15 @@ Read from TOML (see scenarios/README.md for the format). Every mistake in a file
 with the file, the key and the problem, never as a traceback.
 """
 
+import dataclasses
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from emulator.fault_rules import LINK_KINDS, FaultKind, FaultRule, Trigger
-from emulator.faults import FaultConfig, LineFaults
+from emulator.faults import RATE_KINDS, FaultConfig, with_rate
 from emulator.link.conditions import LinkConditions
 
-RATE_KINDS = {"bit-errors": "bit_error_rate", "drop-bytes": "drop_rate", "corrupt-lines": "line_corruption_rate"}
 DIRECTIONS = ("to-printer", "to-host")
 PROTOCOLS = ("auto", "marlin", "ultimaker")
 OUTCOMES = ("completed", "failed")
@@ -162,21 +162,14 @@ def _printer(table: _Reader) -> PrinterSetup:
 
 
 def _faults(path: Path, entries: list, seed: int) -> FaultConfig:
-    rates = {direction: {} for direction in DIRECTIONS}
-    rules = []
+    config = FaultConfig(seed=seed)
     for number, entry in enumerate(entries, start=1):
         fault = parse_fault_table(entry, f"{path}: [[fault]] #{number}")
         if isinstance(fault, FaultRule):
-            rules.append(fault)
+            config = dataclasses.replace(config, rules=(*config.rules, fault))
         else:
-            direction, attribute, rate = fault
-            rates[direction][attribute] = rate
-    return FaultConfig(
-        to_printer=LineFaults(**rates["to-printer"]),
-        to_host=LineFaults(**rates["to-host"]),
-        seed=seed,
-        rules=tuple(rules),
-    )
+            config = with_rate(config, *fault)
+    return config
 
 
 def parse_fault_table(entry, where: str) -> FaultRule | tuple[str, str, float]:

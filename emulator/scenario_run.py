@@ -5,7 +5,6 @@ so a scenario full of timeouts runs in moments, yet every delay is honoured in o
 """
 
 import io
-import math
 from dataclasses import dataclass, field
 
 import trio
@@ -216,7 +215,3 @@ def report(result: ScenarioResult) -> str:
         mark = "ok  " if check.passed else "FAIL"
         lines.append(f"      [{mark}] {check.name}" + (f": {check.detail}" if check.detail else ""))
     return "\n".join(lines)
-
-
-def simulated(seconds: float) -> str:
-    return "never" if math.isinf(seconds) else f"{seconds:.1f} s"

@@ -124,9 +124,7 @@ class PrinterServer:
     async def _hang_up(self, seconds: float) -> None:
         """The line is dead for `seconds`; the printer itself runs on, talking to nobody."""
         self.link.hang_up()
-        self._to_printer.clear()
-        self._to_host.clear()
-        self.faults.new_connection()
+        self._forget_the_line()
         await trio.sleep(seconds)
         self.link.reconnect()
 
@@ -137,12 +135,16 @@ class PrinterServer:
 
     def _new_connection(self) -> None:
         self.link.discard_output()
-        self._to_printer.clear()
-        self._to_host.clear()
-        self.faults.new_connection()
+        self._forget_the_line()
         if self.config.baud_from_host:
             baud = self.link.host_baud()
             self._to_printer.baud = self._to_host.baud = baud
+
+    def _forget_the_line(self) -> None:
+        """Bytes on the wire and half-read units belong to a connection that is gone."""
+        self._to_printer.clear()
+        self._to_host.clear()
+        self.faults.new_connection()
 
     # -- faults that fire on a command or at a moment ------------------------------------
     def _before_command(self, text: str) -> None:

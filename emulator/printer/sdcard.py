@@ -55,7 +55,6 @@ class SdCard:
         self.selected: OpenFile | None = None
         self.printing = False
         self.saving: Path | None = None
-        self.finished = False
 
     # -- the directory -----------------------------------------------------------------
     def entries(self) -> list[tuple[str, str, Path]]:
@@ -158,7 +157,6 @@ def select_file(printer, command: Command, now: float):
 def start_print(printer, command: Command, now: float):
     if printer.sd.selected is not None:
         printer.sd.printing = True
-        printer.sd.finished = False
     return reply()
 
 

@@ -55,7 +55,6 @@ class DetectingSession:
             for index, byte in enumerate(data):
                 protocol = classify(byte, self._bootloader)
                 if protocol is not None:
-                    self._protocol = protocol
                     self._session = self._make_session(protocol)
                     self._session.boot()
                     self._detected.set()

@@ -5,9 +5,9 @@ from collections.abc import Callable
 import trio
 
 from emulator.journal import Journal
-from wire.gcode import strip_comment
 from emulator.printer.gcode import parse
 from emulator.printer.model import Printer, Reply, Report, Sleep
+from wire.gcode import strip_comment
 
 
 async def run_command(

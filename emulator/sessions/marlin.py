@@ -7,7 +7,7 @@ from collections.abc import Callable
 import trio
 
 from emulator.journal import Journal
-from emulator.printer.gcode import parse
+from emulator.printer.gcode import Command, parse
 from emulator.printer.model import SELF_REPORTING, Printer, Reply
 from emulator.protocols.marlin import EmergencyCommand, LineReceived, MarlinProtocol, Ok, Output
 from emulator.sessions.driver import hold_queue_full, run_command
@@ -77,8 +77,7 @@ class MarlinSession:
             if isinstance(event, LineReceived):
                 self._queue_in.send_nowait(event)
             elif isinstance(event, EmergencyCommand):
-                for line in self.printer.emergency(event.text, trio.current_time()):
-                    self._say(line)
+                self.announce(self.printer.emergency(event.text, trio.current_time()))
                 if self.printer.halted:
                     break
         self._send(self.protocol.data_to_send())
@@ -113,10 +112,9 @@ class MarlinSession:
         line = self.printer.sd.next_line()
         if line is None:
             self.printer.sd.printing = False
-            self.printer.sd.finished = True
             self._say("Done printing file")
             return
-        await self._run(line)
+        await self._run(line, parse(line))
 
     async def _run_received(self, received: LineReceived) -> None:
         sd = self.printer.sd
@@ -124,36 +122,33 @@ class MarlinSession:
             sd.write_line(received.text)  # M28 stores lines instead of running them
             self._send(self.protocol.send(Ok(received.line_number, planner_free=self._room())))
             return
-        reply = await self._run(received.text)
+        command = parse(received.text)
+        reply = await self._run(received.text, command)
         if self.printer.halted:
             return
-        self._protocol_effects(received.text)
-        for line in reply.lines:
-            self._say(line)
+        self._protocol_effects(command)
+        self.announce(reply.lines)
         self._send(
             self.protocol.send(Ok(received.line_number, reply.ok_suffix, planner_free=self._room()))
         )
         self.protocol.saving_to_sd = sd.saving is not None
         self._reports_changed.set()
 
-    async def _run(self, text: str):
+    async def _run(self, text: str, command: Command) -> Reply:
         self._before_command(text)
         if self.printer.halted:
             return Reply()
-        code = parse(text).code
-        self._set_busy(code not in SELF_REPORTING)
+        self._set_busy(command.code not in SELF_REPORTING)
         try:
             reply = await run_command(self.printer, text, self.journal, self._say)
         finally:
             self._set_busy(False)
         if self.printer.halted:
-            for line in reply.lines:
-                self._say(line)
+            self.announce(reply.lines)
         return reply
 
-    def _protocol_effects(self, text: str) -> None:
+    def _protocol_effects(self, command: Command) -> None:
         """M110, M113 and M999 act on the protocol, not on the printer."""
-        command = parse(text)
         if command.code == "M110" and command.value("N") is not None:
             self.protocol.last_n = int(command.value("N"))
         elif command.code == "M113" and command.has("S"):

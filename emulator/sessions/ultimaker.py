@@ -70,9 +70,8 @@ class UltimakerSession:
 
     async def _execute_commands(self) -> None:
         async for received in self._queue_out:
-            if self.printer.halted:
-                await trio.sleep_forever()
-            self._before_command(received.text)
+            if not self.printer.halted:
+                self._before_command(received.text)
             if self.printer.halted:
                 await trio.sleep_forever()
             reply = await run_command(self.printer, received.text, self.journal, self._respond)
