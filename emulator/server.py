@@ -13,10 +13,11 @@ from emulator.printer import failures
 from emulator.printer.model import Printer
 from emulator.sessions.detect import Detected, DetectingSession
 from emulator.sessions.marlin import MarlinSession
+from emulator.sessions.repetier import RepetierSession
 from emulator.sessions.stk500 import Stk500Session
 from emulator.sessions.ultimaker import UltimakerSession
 
-PROTOCOLS = ("auto", "marlin", "ultimaker")
+PROTOCOLS = ("auto", "marlin", "ultimaker", "repetier")
 
 
 @dataclass(frozen=True)
@@ -110,6 +111,10 @@ class PrinterServer:
                 self.printer, self.journal, self._send, self.config.ultimaker_queue_size,
                 self._before_command,
             )
+        if protocol == "repetier":
+            return RepetierSession(
+                self.printer, self.journal, self._send, reason, self._before_command
+            )
         raise ValueError(f"unknown protocol {protocol!r}")
 
     def _send(self, data: bytes) -> None:
@@ -181,6 +186,8 @@ class PrinterServer:
             return "marlin"
         if isinstance(session, UltimakerSession):
             return "ultimaker"
+        if isinstance(session, RepetierSession):
+            return "repetier"
         return None
 
     def _active_session(self):

@@ -27,7 +27,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from enum import Enum
 
-from wire.gcode import strip_comment
+from wire.gcode import canonical, strip_comment
 
 HOST_COMMANDS = frozenset({"M105", "M110", "M113", "M114", "M115", "M155", "M27", "M400"})
 """Commands hosts send on their own: OctoPrint's `M110 N0`, `M115`, `M113 S2`, `M105` polls and
@@ -98,12 +98,15 @@ def verify(job: Sequence[tuple[int, str]], journal: Sequence[str]) -> Verificati
     (reordered), else one that already ran (duplicated); host commands are extras instead, since
     hosts send them on their own. A job command run nowhere is missing.
     """
-    texts = [command for _, command in job]
+    # Commands are compared in one spelling (wire.gcode.canonical): a binary protocol brings
+    # `G1 X10 F3000` to the printer for the job's `G1 F3000 X10.0`. Problems quote the job.
+    texts = [canonical(command) for _, command in job]
     in_job = set(texts)
-    ran = [(number, command) for number, line in enumerate(journal, 1) if (command := line.strip())]
+    written = {number: line.strip() for number, line in enumerate(journal, 1)}
+    ran = [(number, canonical(line)) for number, line in written.items() if line]
     runs = [(number, command) for number, command in ran if command in in_job]
     found = [  # ((journal position, job index), problem)
-        ((number, -1), Problem(Kind.EXTRA, command, None, number))
+        ((number, -1), Problem(Kind.EXTRA, written[number], None, number))
         for number, command in ran if command not in in_job
     ]
     pairs, approximate = _align(texts, [command for _, command in runs])
@@ -129,16 +132,16 @@ def verify(job: Sequence[tuple[int, str]], journal: Sequence[str]) -> Verificati
         if in_place[k]:
             continue
         if is_host_command(command):
-            found.append(((number, -1), Problem(Kind.EXTRA, command, None, number)))
+            found.append(((number, -1), Problem(Kind.EXTRA, written[number], None, number)))
         elif waiting[command]:
             i = waiting[command].popleft()
             ran_at[i] = number
-            found.append(((number, i), Problem(Kind.REORDERED, command, job[i][0], number)))
+            found.append(((number, i), Problem(Kind.REORDERED, job[i][1], job[i][0], number)))
         else:
             again.append((number, command))
     for i, last in due_after.items():
         if ran_at[i] is None:
-            found.append(((last + 0.5, i), Problem(Kind.MISSING, texts[i], job[i][0], None)))
+            found.append(((last + 0.5, i), Problem(Kind.MISSING, job[i][1], job[i][0], None)))
 
     # A repeat is charged to the run of the same command just before it. With none before, it
     # ran first, and the first run after it counts as the repeat instead.
@@ -157,7 +160,7 @@ def verify(job: Sequence[tuple[int, str]], journal: Sequence[str]) -> Verificati
             first, i = done[0]
             done[0] = (number, i)
             number = first
-        found.append(((number, i), Problem(Kind.DUPLICATED, command, job[i][0], number)))
+        found.append(((number, i), Problem(Kind.DUPLICATED, job[i][1], job[i][0], number)))
 
     found.sort(key=lambda entry: entry[0])
     return Verification(

@@ -1,7 +1,10 @@
 """What counts as the command on a G-code line. Host and printer must agree on this exactly:
 it is what the host sends and what the printer's journal records."""
 
+import math
 import re
+import struct
+from decimal import Decimal
 
 _PAREN_COMMENT = re.compile(r"\([^)]*\)")
 
@@ -13,3 +16,55 @@ def strip_comment(line: str) -> str:
 
 def remove_paren_comments(text: str) -> str:
     return _PAREN_COMMENT.sub("", text)
+
+
+# -- the same command, however it is written ------------------------------------------------
+TEXT_ARGUMENT_CODES = frozenset({"M23", "M28", "M29", "M30", "M32", "M117", "M118"})
+_WORDS = re.compile(r"(?:\s*[A-Za-z]\s*(?:[-+]?(?:\d+\.?\d*|\.\d+))?)+\s*")
+_WORD = re.compile(r"([A-Za-z])\s*([-+]?(?:\d+\.?\d*|\.\d+))?")
+
+
+def float32(value: float) -> float:
+    """`value` as a float32 holds it (OverflowError if it cannot)."""
+    return struct.unpack("<f", struct.pack("<f", value))[0]
+
+
+def number_text(value: float) -> str:
+    """The shortest plain decimal that is the same float32 (an int as itself)."""
+    if isinstance(value, int) or not math.isfinite(value):
+        return str(value)
+    for digits in range(1, 10):
+        text = f"{value:.{digits}g}"
+        if float32(float(text)) == value:
+            break
+    plain = format(Decimal(text), "f")
+    return plain.rstrip("0").rstrip(".") if "." in plain else plain
+
+
+def canonical(command: str) -> str:
+    """One spelling for a command however a host or a wire format wrote it: parameters in
+    alphabetical order, numbers as the float32 the firmware keeps (`X10.0`, `X10`, `X10.000001`
+    are one command), a command word without leading zeros. Text arguments (M117 messages, file
+    names) and lines that are not plain words stay as they are."""
+    text = strip_comment(command)
+    if not _WORDS.fullmatch(text):
+        return text
+    words = _WORD.findall(text)
+    letter, number = words[0]
+    if letter.upper() in "GM" and number and number.isdigit():
+        head = f"{letter}{int(number)}"
+    else:
+        head = letter + number
+    if head.upper() in TEXT_ARGUMENT_CODES:
+        return text
+    params = sorted(words[1:], key=lambda word: word[0])
+    return " ".join([head] + [letter + _number(value) for letter, value in params])
+
+
+def _number(text: str) -> str:
+    if not text:
+        return ""
+    try:
+        return number_text(float32(float(text)))
+    except OverflowError:
+        return text

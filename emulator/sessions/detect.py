@@ -14,6 +14,7 @@ class Detected(Enum):
     ULTIMAKER = "ultimaker"
     MARLIN = "marlin"
     STK500 = "stk500"  # a host talking to the Arduino bootloader that runs first after a reset
+    REPETIER = "repetier"
 
 
 def classify(byte: int, bootloader: bool = True) -> Detected | None:
@@ -22,6 +23,10 @@ def classify(byte: int, bootloader: bool = True) -> Detected | None:
         return Detected.STK500
     if byte == 0xFF:
         return Detected.ULTIMAKER
+    if byte & 0x80:
+        # A Repetier binary command: bit 7 of its first byte is always set. (0xFF would need
+        # M and G in one command; it is Ultimaker's.)
+        return Detected.REPETIER
     if byte in PRINTABLE:
         return Detected.MARLIN
     return None
