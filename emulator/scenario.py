@@ -14,7 +14,8 @@ from emulator.faults import RATE_KINDS, FaultConfig, with_rate
 from emulator.link.conditions import LinkConditions
 
 DIRECTIONS = ("to-printer", "to-host")
-PROTOCOLS = ("auto", "marlin", "ultimaker")
+PROTOCOLS = ("auto", "marlin", "ultimaker", "repetier")
+HOST_PROTOCOLS = ("marlin", "ultimaker", "repetier")
 OUTCOMES = ("completed", "failed")
 TRIGGER_KEYS = ("nth", "every", "at", "pattern", "probability")
 
@@ -249,7 +250,7 @@ def generated_job(moves: int) -> tuple[str, ...]:
 
 def _host(table: _Reader, printer: PrinterSetup) -> HostSetup:
     host = HostSetup(
-        protocol=table.get("protocol", str, None, ("marlin", "ultimaker")),
+        protocol=table.get("protocol", str, None, HOST_PROTOCOLS),
         window=table.get("window", int, 3, minimum=1, maximum=32),
         timeout=float(table.get("timeout", (int, float), 2.0, minimum=0.01)),
         retries=table.get("retries", int, 8, minimum=1),

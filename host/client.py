@@ -311,14 +311,17 @@ class MarlinClient(_Client):
         await super().wait_idle()
 
 
-CLIENTS = {client.protocol: client for client in (UltimakerClient, MarlinClient)}
-PROTOCOLS = tuple(CLIENTS)
+PROTOCOLS = ("ultimaker", "marlin", "repetier")
 
 
 def _client_class(protocol: str) -> type[_Client]:
-    if protocol not in CLIENTS:
+    # The other protocols' clients build on this module's shell, so they are imported here.
+    from host.repetier_client import RepetierClient
+
+    clients = {client.protocol: client for client in (UltimakerClient, MarlinClient, RepetierClient)}
+    if protocol not in clients:
         raise CommandError(f"unknown protocol {protocol!r}; choose from {', '.join(PROTOCOLS)}")
-    return CLIENTS[protocol]
+    return clients[protocol]
 
 
 def load_job(path: str, protocol: str = "ultimaker") -> list[JobCommand]:

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from wire.gcode import strip_comment
+from wire.gcode import canonical, strip_comment
 
 pytestmark = pytest.mark.e2e
 BIN = Path(sys.executable).parent
@@ -95,6 +95,22 @@ def test_a_ten_thousand_command_print_is_journaled_exactly(emulator, tmp_path):
     assert summary["commands"] == len(commands)
     assert set(summary) >= {"commands", "packets_sent", "resends", "timeouts", "elapsed"}
     assert printer.journal_lines() == commands
+
+
+@pytest.mark.parametrize("protocol", ["ultimaker", "marlin", "repetier"])
+def test_each_protocol_prints_a_job_through_auto_detection(emulator, tmp_path, protocol):
+    """One printer in `--protocol auto`; each host's first bytes choose its protocol."""
+    printer = emulator("--speed", "1000")
+    commands = write_job(tmp_path / "part.gcode", 1500)
+    result = host("print", printer.link, tmp_path / "part.gcode", "--protocol", protocol, "--json")
+    assert result.returncode == 0, result.stderr
+    assert json.loads(result.stdout)["commands"] == len(commands)
+    # Repetier's host asks for M115 itself; a binary command reaches the journal in the
+    # firmware's words (`E0` for `E0.00`), which canonical() reads as the same command.
+    journal = [line for line in printer.journal_lines() if line != "M115"]
+    assert [canonical(line) for line in journal] == [canonical(command) for command in commands]
+    if protocol != "repetier":
+        assert journal == commands
 
 
 def test_a_host_that_dies_mid_print_and_a_new_one_lose_and_repeat_nothing(emulator, tmp_path):

@@ -1,0 +1,100 @@
+"""Host side of Repetier's protocol: encode numbered commands (binary where they fit), parse
+what the printer says. Sans-IO; every line becomes exactly one event, damaged or not.
+
+What Repetier-Firmware says (PROTOCOLS.md section 2): `ok <N>` when a command is queued,
+an empty line + `Resend:<n>` + `ok` for a command it wants again, `skip <N>` + `ok` for one
+it has already, `wait` when idle, `busy:processing` / `busy:heating` while it works.
+"""
+
+import re
+from dataclasses import dataclass
+
+from host.codecs import marlin
+from host.codecs.lines import LineBuffer
+from wire import repetier
+
+RESYNC = b"\0" * 32  # before a resend after binary: the firmware waits for 31 NULs in a row
+WIRE_NUMBER = 0xFFFF  # binary N is 16 bits, and the firmware compares numbers modulo 2^16
+
+check_command = marlin.check_command
+Line = marlin.Line
+LineKind = marlin.LineKind
+
+
+@dataclass(frozen=True)
+class Ok:
+    line_number: int | None  # None: a bare `ok` (after M110, Resend or skip)
+
+
+@dataclass(frozen=True)
+class Resend:
+    line_number: int | None  # None if the number was unreadable
+
+
+@dataclass(frozen=True)
+class Skip:
+    line_number: int
+
+
+@dataclass(frozen=True)
+class Identity:
+    """M115's first line: `REPETIER_PROTOCOL:<n>` says which binary versions it reads."""
+
+    binary_version: int
+    text: str
+
+
+Event = Ok | Resend | Skip | Identity | Line
+
+_OK = re.compile(r"ok(?:\s+(\d+))?\s*")
+_RESEND = re.compile(r"(?:resend|rs)\b:?\s*(?:N:?\s*)?(\d+)?", re.IGNORECASE)
+_SKIP = re.compile(r"skip\s+(\d+)\s*")
+_PROTOCOL = re.compile(r"\bREPETIER_PROTOCOL:(\d+)")
+
+
+def parse_line(text: str) -> Event:
+    if (match := _OK.fullmatch(text)) is not None:
+        return Ok(int(match[1]) if match[1] else None)
+    if (match := _RESEND.match(text)) is not None:
+        return Resend(int(match[1]) if match[1] else None)
+    if (match := _SKIP.fullmatch(text)) is not None:
+        return Skip(int(match[1]))
+    if text.startswith("FIRMWARE_NAME:"):
+        match = _PROTOCOL.search(text)
+        return Identity(int(match[1]) if match else 0, text)
+    event = marlin.parse_line(text)
+    if isinstance(event, marlin.LineError):
+        return Line(LineKind.ERROR, text)  # the Resend that follows says what to do
+    if isinstance(event, (marlin.Ok, marlin.ResendRequest)):
+        return Line(LineKind.DATA, text)
+    return event
+
+
+class LineParser:
+    def __init__(self) -> None:
+        self._lines = LineBuffer()
+        self.garbled = 0
+
+    def receive_data(self, data: bytes) -> None:
+        self._lines.receive_data(data)
+
+    def next_event(self) -> Event | None:
+        while (raw := self._lines.next_line()) is not None:
+            raw = raw.rstrip(b"\r")
+            if not raw.strip():
+                continue  # the empty line before Resend
+            if marlin.is_garbled(raw):
+                self.garbled += 1
+            return parse_line(raw.decode("ascii", "replace").strip())
+        return None
+
+
+def encode_command(number: int, command: str, binary_version: int) -> tuple[bytes, bool]:
+    """The command as line `number`, and whether it went binary: binary when the printer reads
+    binary and the command has a binary form (V2 only if the printer reads V2), else ASCII."""
+    wire_number = number & WIRE_NUMBER
+    if binary_version >= 1:
+        binary = repetier.from_gcode(command, wire_number, v2=binary_version >= 2)
+        if binary is not None:
+            return repetier.encode(binary), True
+    return marlin.encode_line(wire_number, command), False
