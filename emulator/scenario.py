@@ -14,7 +14,7 @@ from emulator.faults import RATE_KINDS, FaultConfig, with_rate
 from emulator.link.conditions import LinkConditions
 
 DIRECTIONS = ("to-printer", "to-host")
-PROTOCOLS = ("auto", "marlin", "ultimaker", "repetier")
+PROTOCOLS = ("auto", "marlin", "ultimaker", "repetier", "commstack")
 HOST_PROTOCOLS = ("marlin", "ultimaker", "repetier")
 OUTCOMES = ("completed", "failed")
 TRIGGER_KEYS = ("nth", "every", "at", "pattern", "probability")

@@ -11,13 +11,14 @@ from emulator.link.conditions import LinkConditions, Pipe
 from emulator.link.pty import HostOpened, PtyLink
 from emulator.printer import failures
 from emulator.printer.model import Printer
+from emulator.sessions.commstack import CommStackSession
 from emulator.sessions.detect import Detected, DetectingSession
 from emulator.sessions.marlin import MarlinSession
 from emulator.sessions.repetier import RepetierSession
 from emulator.sessions.stk500 import Stk500Session
 from emulator.sessions.ultimaker import UltimakerSession
 
-PROTOCOLS = ("auto", "marlin", "ultimaker", "repetier")
+PROTOCOLS = ("auto", "marlin", "ultimaker", "repetier", "commstack")
 
 
 @dataclass(frozen=True)
@@ -115,6 +116,8 @@ class PrinterServer:
             return RepetierSession(
                 self.printer, self.journal, self._send, reason, self._before_command
             )
+        if protocol == "commstack":
+            return CommStackSession(self.printer, self.journal, self._send, self._before_command)
         raise ValueError(f"unknown protocol {protocol!r}")
 
     def _send(self, data: bytes) -> None:
@@ -188,6 +191,8 @@ class PrinterServer:
             return "ultimaker"
         if isinstance(session, RepetierSession):
             return "repetier"
+        if isinstance(session, CommStackSession):
+            return "commstack"
         return None
 
     def _active_session(self):

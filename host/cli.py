@@ -132,7 +132,7 @@ async def _print(args) -> int:
     job = load_job(args.file, args.protocol)
     async with open_printer(args.port, args.protocol, args.baud, _options(args), _line_printer(args.verbose)) as printer:
         bar = ProgressBar(len(job), printer.stats)
-        summary = await printer.print_commands([c.text for c in job], bar.update)
+        summary = await printer.print_file(args.file, bar.update)
     if args.json:
         print(json.dumps(summary.as_dict()))
     else:

@@ -311,14 +311,18 @@ class MarlinClient(_Client):
         await super().wait_idle()
 
 
-PROTOCOLS = ("ultimaker", "marlin", "repetier")
+PROTOCOLS = ("ultimaker", "marlin", "repetier", "commstack")
 
 
 def _client_class(protocol: str) -> type[_Client]:
     # The other protocols' clients build on this module's shell, so they are imported here.
+    from host.commstack_client import CommStackClient
     from host.repetier_client import RepetierClient
 
-    clients = {client.protocol: client for client in (UltimakerClient, MarlinClient, RepetierClient)}
+    clients = {
+        client.protocol: client
+        for client in (UltimakerClient, MarlinClient, RepetierClient, CommStackClient)
+    }
     if protocol not in clients:
         raise CommandError(f"unknown protocol {protocol!r}; choose from {', '.join(PROTOCOLS)}")
     return clients[protocol]

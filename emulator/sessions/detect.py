@@ -1,13 +1,19 @@
 """`--protocol auto`: the first decisive bytes of a connection choose the protocol."""
 
+import math
 from collections.abc import Callable
 from enum import Enum
 
 import trio
 
 from emulator.protocols.stk500 import MESSAGE_START
+from wire.commstack import starts_with_header
 
 PRINTABLE = frozenset(range(0x20, 0x7F)) | {0x0A, 0x0D}
+# A CommStack frame starts with its COBS code byte: the distance to the header's first zero,
+# which is at the latest its padding byte (offset 3), so 1 to 4.
+COBS_HEADER_STARTS = frozenset({1, 2, 3, 4})
+HOLD_TIMEOUT = 0.2  # a frame comes in one write: bytes held longer without a header are noise
 
 
 class Detected(Enum):
@@ -15,6 +21,7 @@ class Detected(Enum):
     MARLIN = "marlin"
     STK500 = "stk500"  # a host talking to the Arduino bootloader that runs first after a reset
     REPETIER = "repetier"
+    COMMSTACK = "commstack"
 
 
 def classify(byte: int, bootloader: bool = True) -> Detected | None:
@@ -29,6 +36,8 @@ def classify(byte: int, bootloader: bool = True) -> Detected | None:
         return Detected.REPETIER
     if byte in PRINTABLE:
         return Detected.MARLIN
+    if byte in COBS_HEADER_STARTS:
+        return Detected.COMMSTACK
     return None
 
 
@@ -44,7 +53,8 @@ class DetectingSession:
         self._make_session = make_session
         self._bootloader = bootloader
         self._session = None
-        self._detected = trio.Event()
+        self._held = b""  # the start of what may be a CommStack frame
+        self._fed = trio.Event()
 
     @property
     def active(self):
@@ -56,19 +66,39 @@ class DetectingSession:
         pass
 
     def feed(self, data: bytes) -> None:
+        self._fed.set()
         if self._session is None:
-            for index, byte in enumerate(data):
-                protocol = classify(byte, self._bootloader)
+            data = self._held + data
+            self._held = b""
+            index = 0
+            while index < len(data):
+                protocol = classify(data[index], self._bootloader)
+                if protocol is Detected.COMMSTACK:
+                    # Control bytes 1-4 are common in noise: only a header that checks out
+                    # (its first 8 bytes) says CommStack.
+                    header = starts_with_header(data[index:])
+                    if header is None:
+                        self._held = data[index:]
+                        return
+                    if not header:
+                        protocol = None
                 if protocol is not None:
                     self._session = self._make_session(protocol)
                     self._session.boot()
-                    self._detected.set()
                     data = data[index:]
                     break
+                index += 1
             else:
                 return
         self._session.feed(data)
 
     async def run(self) -> None:
-        await self._detected.wait()
+        while self._session is None:
+            fed = self._fed = trio.Event()
+            with trio.move_on_after(HOLD_TIMEOUT if self._held else math.inf) as waiting:
+                await fed.wait()
+            if waiting.cancelled_caught and self._held:
+                # No header came with it: the candidate byte was noise; read on after it.
+                rest, self._held = self._held[1:], b""
+                self.feed(rest)
         await self._session.run()

@@ -1,0 +1,216 @@
+"""Printrhub's CommStack: frames, the MK20's answers, its file tasks, and the host's upload."""
+
+import json
+import struct
+
+import pytest
+import trio
+import trio.testing
+from hypothesis import given
+from hypothesis import strategies as st
+
+from emulator.faults import FaultConfig, parse_fault
+from emulator.printer.model import Printer, PrinterConfig
+from emulator.protocols.commstack import CommStackProtocol, FrameRejected, RequestReceived
+from emulator.server import ServerConfig
+from emulator.verify import is_host_command
+from host.client import connect
+from host.commstack_endpoint import CommStackEndpoint
+from tests.conftest import running_printer
+from wire.commstack import (
+    BadData,
+    BadHeader,
+    CommType,
+    FrameSplitter,
+    Packet,
+    Task,
+    Undecodable,
+    decode_frame,
+    encode_packet,
+    starts_with_header,
+)
+
+PING = Packet(Task.PING, CommType.REQUEST)
+
+
+def frames(data: bytes) -> list[bytes]:
+    splitter = FrameSplitter()
+    splitter.receive_data(data)
+    found = []
+    while (frame := splitter.next_frame()) is not None:
+        found.append(frame)
+    return found
+
+
+# -- the wire -------------------------------------------------------------------------------
+def test_the_reference_ping():
+    """PROTOCOLS.md section 3: the 8-byte header with its padding byte, COBS, 0x00."""
+    wire = encode_packet(PING)
+    assert wire.hex() == "031901010101021a0100"
+    assert decode_frame(wire[:-1]) == PING
+
+
+def test_checksums_cover_what_the_firmware_says():
+    wire = encode_packet(Packet(Task.FILE_SAVE_DATA, CommType.REQUEST, b"\x01\x02\xff"))
+    from cobs import cobs
+
+    raw = bytearray(cobs.decode(wire[:-1]))
+    assert raw[:8] == bytes([8, 1, 3, 0]) + struct.pack("<HH", 0x102, 8 + 1 + 3 + 0x102)
+    raw[9] ^= 1  # damaged data: the header still checks
+    assert decode_frame(cobs.encode(bytes(raw))) == BadData(Task.FILE_SAVE_DATA, CommType.REQUEST)
+    raw[0] ^= 1  # damaged header
+    assert isinstance(decode_frame(cobs.encode(bytes(raw))), BadHeader)
+    raw[3] = 0x5A  # ...and the padding byte is nobody's business
+    raw[0] ^= 1
+    raw[9] ^= 1
+    assert decode_frame(cobs.encode(bytes(raw))).data == b"\x01\x02\xff"
+
+
+packets = st.builds(
+    Packet, st.integers(0, 255), st.integers(0, 255), st.binary(max_size=245)
+)
+
+
+@given(packets)
+def test_any_packet_round_trips(packet):
+    wire = encode_packet(packet)
+    assert wire.count(0) == 1 and wire.endswith(b"\0")
+    assert frames(wire) == [wire[:-1]]
+    assert decode_frame(wire[:-1]) == packet
+
+
+@given(st.binary(max_size=1200))
+def test_garbage_never_crashes_either_side(data):
+    mk20 = CommStackProtocol()
+    mk20.receive_data(data)
+    while mk20.next_event() is not None:
+        pass
+    assert len(mk20.data_to_send()) % 10 == 0  # only empty ResponseFailed packets, if anything
+    host = CommStackEndpoint()
+    host.receive_data(data)
+    host.poll(0.0)
+
+
+# -- the MK20's receiver --------------------------------------------------------------------
+def test_a_bad_data_checksum_is_answered_failed_and_a_bad_header_not_at_all():
+    from cobs import cobs
+
+    mk20 = CommStackProtocol()
+    good = encode_packet(Packet(Task.FILE_SAVE_DATA, CommType.REQUEST, b"abc"))
+    raw = bytearray(cobs.decode(good[:-1]))
+    raw[8] ^= 4
+    mk20.receive_data(cobs.encode(bytes(raw)) + b"\0")
+    assert mk20.next_event() == FrameRejected("data checksum", answered=True)
+    assert mk20.data_to_send() == encode_packet(Packet(Task.FILE_SAVE_DATA, CommType.RESPONSE_FAILED))
+    raw[8] ^= 4
+    raw[6] ^= 1
+    mk20.receive_data(cobs.encode(bytes(raw)) + b"\0")
+    assert mk20.next_event() == FrameRejected("header checksum", answered=False)
+    assert mk20.data_to_send() == b""
+    # A stray 0x00 is an empty frame: the MK20 answers it as a failure of the last task.
+    mk20.receive_data(encode_packet(PING) + b"\0")
+    assert mk20.next_event() == RequestReceived(Task.PING, b"")
+    assert mk20.next_event() == FrameRejected("not a COBS frame", answered=True)
+    assert mk20.data_to_send() == encode_packet(Packet(Task.PING, CommType.RESPONSE_FAILED))
+
+
+# -- the MK20's tasks -----------------------------------------------------------------------
+async def exchange(host, packet: Packet) -> Packet:
+    await host.send_all(encode_packet(packet))
+    buffer = b""
+    while True:
+        buffer += await host.receive_some()
+        for frame in frames(buffer):
+            answer = decode_frame(frame)
+            if isinstance(answer, Packet) and answer.comm_type != CommType.REQUEST:
+                return answer
+
+
+@pytest.fixture
+def sd_printer(tmp_path):
+    return Printer(PrinterConfig(sd_dir=tmp_path))
+
+
+async def test_files_are_stored_on_the_card_and_printed(autojump_clock, sd_printer, tmp_path):
+    async with running_printer(ServerConfig(protocol="auto"), sd_printer) as printer:
+        host = printer.link.open_host()
+        request = lambda task, data=b"": exchange(host, Packet(task, CommType.REQUEST, data))  # noqa: E731
+        assert (await request(Task.PING, struct.pack("<i", 7))).data == struct.pack("<i", 109)
+        info = await request(Task.GET_SYSTEM_INFO)
+        assert len(info.data) == 128 and info.data[48:59] == b"fake-marlin"
+        opened = json.dumps({"localFilePath": "/jobs/part.gcode", "fileSize": 24, "compression": 1})
+        assert (await request(Task.FILE_OPEN_FOR_WRITE, opened.encode() + b"\0")).comm_type == CommType.RESPONSE_SUCCESS
+        assert (await request(Task.FILE_SET_SIZE, struct.pack("<I", 24))).comm_type == CommType.RESPONSE_SUCCESS
+        await request(Task.FILE_SAVE_DATA, b"G28\nG1 X5 F3000\n")
+        await request(Task.FILE_SAVE_DATA, b"M400\nM8\n")
+        closed = await request(Task.FILE_CLOSE)
+        assert closed.data == struct.pack("<I", 24)
+        assert (tmp_path / "jobs" / "part.gcode").read_bytes() == b"G28\nG1 X5 F3000\nM400\nM8\n"
+        assert (await request(Task.PRINT_PROJECT_WITH_ID)).comm_type == CommType.RESPONSE_SUCCESS
+        await trio.sleep(30)
+        ran = await request(Task.RUN_PRINTER_GCODE, b"M114\0")
+        assert ran.data.startswith(b"X:5.00 Y:0.00 Z:0.00")
+        assert (await request(Task.PRINT_PROJECT_WITH_ID, b"/nowhere.gcode\0")).comm_type == CommType.RESPONSE_FAILED
+        assert (await request(Task.FILE_OPEN_FOR_WRITE, b"../outside\0")).comm_type == CommType.RESPONSE_FAILED
+        assert (await request(Task.DEBUG_LOG, b"x")).comm_type == CommType.RESPONSE_SUCCESS
+        journal = printer.journal
+    assert journal == ["G28", "G1 X5 F3000", "M400", "M8", "M114"]
+
+
+async def test_rle16_data_is_expanded(autojump_clock, sd_printer, tmp_path):
+    async with running_printer(ServerConfig(protocol="commstack"), sd_printer) as printer:
+        host = printer.link.open_host()
+        opened = json.dumps({"localFilePath": "ui.min", "compression": 2}).encode() + b"\0"
+        await exchange(host, Packet(Task.FILE_OPEN_FOR_WRITE, CommType.REQUEST, opened))
+        bad = await exchange(host, Packet(Task.FILE_SAVE_DATA, CommType.REQUEST, b"\x02\x01"))
+        assert bad.comm_type == CommType.RESPONSE_FAILED
+        await exchange(host, Packet(Task.FILE_SAVE_DATA, CommType.REQUEST, b"\x03\x41\x42\x01\x43\x44"))
+        await exchange(host, Packet(Task.FILE_CLOSE, CommType.REQUEST))
+    assert (tmp_path / "ui.min").read_bytes() == b"ABABABCD"
+
+
+async def test_the_mk20_pings_until_someone_answers(autojump_clock):
+    async with running_printer(ServerConfig(protocol="commstack")) as printer:
+        host = printer.link.open_host()
+        await trio.sleep(11)
+        pings = frames(await host.receive_some())
+        assert [decode_frame(f) for f in pings] == [Packet(Task.PING, CommType.REQUEST, struct.pack("<i", 109))] * 3
+        await host.send_all(encode_packet(Packet(Task.PING, CommType.RESPONSE_SUCCESS, struct.pack("<i", 1))))
+        await trio.sleep(20)
+        await host.send_all(encode_packet(PING))
+        assert [decode_frame(f).comm_type for f in frames(await host.receive_some())] == [CommType.RESPONSE_SUCCESS]
+
+
+# -- the host -------------------------------------------------------------------------------
+JOB = ["G28", "M104 S200", "M117 Stored and printed"] + [f"G1 X{n % 50}.5 Y{n % 20} E{n / 10:.2f} F3000" for n in range(300)]
+
+
+@pytest.mark.parametrize(
+    "faults",
+    [
+        (),
+        ("to-printer:bit-errors=1e-4", "to-host:bit-errors=1e-4"),
+        ("to-printer:drop-bytes=2e-3", "to-host:drop-bytes=5e-3"),
+    ],
+)
+async def test_the_host_uploads_and_prints_a_job_exactly_once(autojump_clock, sd_printer, tmp_path, faults):
+    config = FaultConfig(seed=2)
+    for spec in faults:
+        config = parse_fault(spec, config)
+    async with running_printer(ServerConfig(protocol="auto", faults=config), sd_printer) as printer:
+        async with connect(printer.link.open_host(), "commstack") as client:
+            summary = await client.print_commands(JOB)
+        journal = printer.journal
+    assert summary.commands == len(JOB)
+    assert (tmp_path / "job.gcode").read_text() == "".join(command + "\n" for command in JOB)
+    assert [line for line in journal if not is_host_command(line)] == JOB
+    if faults:
+        assert summary.resends + summary.timeouts > 0
+
+
+@given(packets)
+def test_auto_detection_knows_a_frame_by_its_header_and_waits_for_no_more(packet):
+    wire = encode_packet(packet)
+    assert all(starts_with_header(wire[:cut]) in (None, True) for cut in range(len(wire)))
+    assert starts_with_header(wire) is True
+    assert starts_with_header(b"\x01\x0e\x01\x14M105\n") is False  # STK500 noise, then Marlin
