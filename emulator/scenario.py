@@ -15,7 +15,7 @@ from emulator.link.conditions import LinkConditions
 
 DIRECTIONS = ("to-printer", "to-host")
 PROTOCOLS = ("auto", "marlin", "ultimaker", "repetier", "commstack")
-HOST_PROTOCOLS = ("marlin", "ultimaker", "repetier")
+HOST_PROTOCOLS = ("marlin", "ultimaker", "repetier", "commstack")
 OUTCOMES = ("completed", "failed")
 TRIGGER_KEYS = ("nth", "every", "at", "pattern", "probability")
 

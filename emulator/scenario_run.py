@@ -5,7 +5,9 @@ so a scenario full of timeouts runs in moments, yet every delay is honoured in o
 """
 
 import io
+import tempfile
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import trio
 import trio.testing
@@ -66,13 +68,15 @@ class _Recorder:
 
 def run_scenario(scenario: Scenario) -> ScenarioResult:
     clock = trio.testing.MockClock(autojump_threshold=0)
-    return trio.run(_run, scenario, clock=clock)
+    # The printer has an SD card, as `fake-marlin` gives it one: an empty temporary directory.
+    with tempfile.TemporaryDirectory(prefix="fake-marlin-sd-") as sd_dir:
+        return trio.run(_run, scenario, Path(sd_dir), clock=clock)
 
 
-async def _run(scenario: Scenario) -> ScenarioResult:
+async def _run(scenario: Scenario, sd_dir: Path) -> ScenarioResult:
     result = ScenarioResult(scenario)
     setup = scenario.printer
-    printer = Printer(PrinterConfig(extruders=setup.extruders))
+    printer = Printer(PrinterConfig(extruders=setup.extruders, sd_dir=sd_dir))
     journal_text = io.StringIO()
     link = MemoryLink()
     server = PrinterServer(link, printer, Journal(journal_text), ServerConfig(
