@@ -256,3 +256,12 @@ async def test_the_host_streams_a_job_exactly_once_through_faults(autojump_clock
     assert response and response[0].startswith("X:")
     if faults:
         assert summary.resends > 0
+
+
+async def test_auto_takes_high_bytes_for_noise_unless_a_command_checks_out(autojump_clock):
+    async with running_printer(ServerConfig(protocol="auto")) as printer:
+        host = printer.link.open_host()
+        await host.send_all(b"\xf0\x81\x92M105\n")  # line noise, then a Marlin host
+        await trio.sleep(1)
+        assert (await host.receive_some()).decode().startswith("start\n")
+        assert printer.server.protocol_name == "marlin"

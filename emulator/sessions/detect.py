@@ -6,14 +6,16 @@ from enum import Enum
 
 import trio
 
+from emulator.protocols.repetier import MAX_CMD_SIZE
 from emulator.protocols.stk500 import MESSAGE_START
+from wire import repetier
 from wire.commstack import starts_with_header
 
 PRINTABLE = frozenset(range(0x20, 0x7F)) | {0x0A, 0x0D}
 # A CommStack frame starts with its COBS code byte: the distance to the header's first zero,
 # which is at the latest its padding byte (offset 3), so 1 to 4.
 COBS_HEADER_STARTS = frozenset({1, 2, 3, 4})
-HOLD_TIMEOUT = 0.2  # a frame comes in one write: bytes held longer without a header are noise
+HOLD_TIMEOUT = 0.2  # a command comes in one write: bytes held longer unconfirmed are noise
 
 
 class Detected(Enum):
@@ -41,6 +43,27 @@ def classify(byte: int, bootloader: bool = True) -> Detected | None:
     return None
 
 
+def starts_with_repetier_command(data: bytes) -> bool | None:
+    """Whether `data` begins with a whole binary command whose Fletcher-16 checks out; None
+    until enough bytes have come."""
+    size = repetier.command_size(data[:5])
+    if size is None or len(data) < size:
+        return None if len(data) < MAX_CMD_SIZE else False
+    if size > MAX_CMD_SIZE:
+        return False
+    try:
+        repetier.decode(data[:size])
+    except repetier.BadChecksum:
+        return False
+    return True
+
+
+CONFIRMED_BY = {
+    Detected.REPETIER: starts_with_repetier_command,
+    Detected.COMMSTACK: starts_with_header,
+}
+
+
 class DetectingSession:
     """Holds a connection's first bytes until they name a protocol, then hands over.
 
@@ -53,7 +76,7 @@ class DetectingSession:
         self._make_session = make_session
         self._bootloader = bootloader
         self._session = None
-        self._held = b""  # the start of what may be a CommStack frame
+        self._held = b""  # the start of what may be a Repetier command or a CommStack frame
         self._fed = trio.Event()
 
     @property
@@ -73,14 +96,14 @@ class DetectingSession:
             index = 0
             while index < len(data):
                 protocol = classify(data[index], self._bootloader)
-                if protocol is Detected.COMMSTACK:
-                    # Control bytes 1-4 are common in noise: only a header that checks out
-                    # (its first 8 bytes) says CommStack.
-                    header = starts_with_header(data[index:])
-                    if header is None:
+                if protocol in CONFIRMED_BY:
+                    # Control bytes and high bytes are common in noise: only a checksum that
+                    # checks out (a Repetier command's, a CommStack header's) decides.
+                    confirmed = CONFIRMED_BY[protocol](data[index:])
+                    if confirmed is None:
                         self._held = data[index:]
                         return
-                    if not header:
+                    if not confirmed:
                         protocol = None
                 if protocol is not None:
                     self._session = self._make_session(protocol)
