@@ -122,8 +122,10 @@ class CommStackClient:
                 )
         if outcome is Outcome.FAILED and refused is not None:
             raise UploadFailed(refused)
+        what = "refused" if outcome is Outcome.FAILED else "unanswered"
         raise PrinterNotResponding(
-            f"{task.name} failed {self.options.max_transmissions} times; is a Printrbot on the port?"
+            f"{task.name} {what} {self.options.max_transmissions} times; "
+            "is a Printrbot (CommStack) on the port?"
         )
 
     # -- the library API -----------------------------------------------------------------

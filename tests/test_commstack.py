@@ -24,7 +24,6 @@ from wire.commstack import (
     FrameSplitter,
     Packet,
     Task,
-    Undecodable,
     decode_frame,
     encode_packet,
     starts_with_header,

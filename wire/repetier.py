@@ -8,7 +8,6 @@ u8 in V1, u16 in V2; X Y Z E F f32; T u8; S P i32; V2 only: I J R D C H A B K L 
 Shared by the emulator (decoding) and the host (encoding). Pure: bytes and values only.
 """
 
-import math
 import re
 import struct
 from dataclasses import dataclass
