@@ -7,6 +7,7 @@ exception.
 """
 
 import re
+from collections.abc import Callable
 from dataclasses import dataclass
 from enum import Enum
 
@@ -227,8 +228,9 @@ def is_garbled(raw: bytes) -> bool:
 class LineParser:
     """Splits what arrives into lines and parses each; counts the lines that came damaged."""
 
-    def __init__(self) -> None:
+    def __init__(self, parse: Callable[[str], object] = parse_line) -> None:
         self._lines = LineBuffer()
+        self._parse = parse  # Repetier's replies are lines too, with words of their own
         self.garbled = 0
 
     def receive_data(self, data: bytes) -> None:
@@ -241,5 +243,5 @@ class LineParser:
                 continue
             if is_garbled(raw):
                 self.garbled += 1
-            return parse_line(raw.decode("ascii", "replace").strip())
+            return self._parse(raw.decode("ascii", "replace").strip())
         return None

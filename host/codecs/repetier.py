@@ -10,7 +10,6 @@ import re
 from dataclasses import dataclass
 
 from host.codecs import marlin
-from host.codecs.lines import LineBuffer
 from wire import repetier
 
 RESYNC = b"\0" * 32  # before a resend after binary: the firmware waits for 31 NULs in a row
@@ -70,23 +69,12 @@ def parse_line(text: str) -> Event:
     return event
 
 
-class LineParser:
+class LineParser(marlin.LineParser):
+    """Marlin's line splitting (the empty line before a Resend skipped, damaged lines
+    counted), with Repetier's words."""
+
     def __init__(self) -> None:
-        self._lines = LineBuffer()
-        self.garbled = 0
-
-    def receive_data(self, data: bytes) -> None:
-        self._lines.receive_data(data)
-
-    def next_event(self) -> Event | None:
-        while (raw := self._lines.next_line()) is not None:
-            raw = raw.rstrip(b"\r")
-            if not raw.strip():
-                continue  # the empty line before Resend
-            if marlin.is_garbled(raw):
-                self.garbled += 1
-            return parse_line(raw.decode("ascii", "replace").strip())
-        return None
+        super().__init__(parse_line)
 
 
 def encode_command(number: int, command: str, binary_version: int) -> tuple[bytes, bool]:
