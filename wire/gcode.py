@@ -20,8 +20,9 @@ def remove_paren_comments(text: str) -> str:
 
 # -- the same command, however it is written ------------------------------------------------
 TEXT_ARGUMENT_CODES = frozenset({"M23", "M28", "M29", "M30", "M32", "M117", "M118"})
-_WORDS = re.compile(r"(?:\s*[A-Za-z]\s*(?:[-+]?(?:\d+\.?\d*|\.\d+))?)+\s*")
-_WORD = re.compile(r"([A-Za-z])\s*([-+]?(?:\d+\.?\d*|\.\d+))?")
+NUMBER = r"[-+]?(?:\d+\.?\d*|\.\d+)"  # a G-code number: no exponents, no underscores
+WORD = re.compile(rf"([A-Za-z])\s*({NUMBER})?")  # a letter and its value, if it has one
+_WORDS = re.compile(rf"(?:\s*[A-Za-z]\s*(?:{NUMBER})?)+\s*")
 
 
 def float32(value: float) -> float:
@@ -49,7 +50,7 @@ def canonical(command: str) -> str:
     text = strip_comment(command)
     if not _WORDS.fullmatch(text):
         return text
-    words = _WORD.findall(text)
+    words = WORD.findall(text)
     letter, number = words[0]
     if letter.upper() in "GM" and number and number.isdigit():
         head = f"{letter}{int(number)}"

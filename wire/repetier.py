@@ -12,7 +12,7 @@ import re
 import struct
 from dataclasses import dataclass
 
-from wire.gcode import float32, number_text
+from wire.gcode import NUMBER, float32, number_text
 
 MARKER = 0x0080  # bit 7: always set, so a binary command's first byte is never ASCII
 BIT_N, BIT_M, BIT_G = 0x0001, 0x0002, 0x0004
@@ -24,7 +24,7 @@ V1_TEXT = 16
 MAX_V2_TEXT = 79  # the firmware counts min(80, textlen + 1) bytes for the length and the text
 TEXT_CODES = frozenset({23, 28, 29, 30, 32, 117})  # M codes whose argument is text (file names)
 LETTERS = "XYZEFTSP" + V2_LETTERS
-_NUMBER = re.compile(r"[-+]?(?:\d+\.?\d*|\.\d+)")  # what G-code writes; no exponents
+_NUMBER = re.compile(NUMBER)
 
 
 class BadChecksum(ValueError):
@@ -236,15 +236,12 @@ def from_gcode(text: str, n: int | None = None, v2: bool = False) -> BinaryComma
         params.append(param)
     order = {letter: index for index, letter in enumerate("XYZEFTSP" + V2_LETTERS)}
     params.sort(key=lambda item: order[item[0]])
-    command = BinaryCommand(n, fields["m"], fields["g"], tuple(params), command_text, v2=False)
     needs_v2 = (
         any(p[0] in V2_LETTERS for p in params)
         or (code > 0xFF and letter != "T")
         or (command_text is not None and len(command_text) > V1_TEXT)
     )
-    if needs_v2:
-        command = BinaryCommand(n, fields["m"], fields["g"], tuple(params), command_text, v2=True)
-    return command
+    return BinaryCommand(n, fields["m"], fields["g"], tuple(params), command_text, v2=needs_v2)
 
 
 def _param(word: str, v2: bool) -> tuple[str, float] | None:

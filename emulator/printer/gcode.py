@@ -1,11 +1,8 @@
 """Parsing one line of G-code the way Marlin's GCodeParser reads it."""
 
-import re
 from dataclasses import dataclass, field
 
-from wire.gcode import strip_comment
-
-_WORD = re.compile(r"([A-Za-z])\s*([-+]?(?:\d+\.?\d*|\.\d+))?")
+from wire.gcode import WORD, strip_comment
 
 
 @dataclass(frozen=True)
@@ -29,7 +26,7 @@ class Command:
 
 def parse(line: str) -> Command:
     text = strip_comment(line)
-    words = _WORD.findall(text)
+    words = WORD.findall(text)
     if not words or words[0][0].upper() not in "GMT" or (words[0][0].upper() != "T" and not words[0][1]):
         return Command(text, "", {})
     letter, number = words[0]

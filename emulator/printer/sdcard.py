@@ -82,6 +82,13 @@ class SdCard:
                 return short, path
         return None
 
+    def path_on_card(self, name: str) -> Path | None:
+        """Where a file called `name` goes on the card; None for a name like ../x that would
+        reach outside it."""
+        root = self.root.resolve()
+        path = (root / name.strip().lstrip("/")).resolve()
+        return path if root in path.parents else None
+
     # -- printing ----------------------------------------------------------------------
     def next_line(self) -> str | None:
         """The next command of the file being printed, or None at its end."""
@@ -188,9 +195,8 @@ def begin_write(printer, command: Command, now: float):
     if _no_media(printer):
         return reply("echo:No media")
     found = printer.sd.find(name)
-    root = printer.sd.root.resolve()
-    path = found[1] if found else (root / name.strip().lstrip("/")).resolve()
-    if root not in path.parents:  # a name like ../x must not reach outside the card
+    path = found[1] if found else printer.sd.path_on_card(name)
+    if path is None:
         return reply(f"open failed, File: {name}.")
     try:
         path.parent.mkdir(parents=True, exist_ok=True)

@@ -67,7 +67,7 @@ _LEADING_INT = re.compile(r"\s*([-+]?\d+)")
 _EMERGENCY = re.compile(r"(?:N-?\d+\s*)?(M(?:108|112|410)(?!\d)|M876\s*S\d+)")
 
 
-def _strtol(text: str) -> int:
+def strtol(text: str) -> int:
     """C's strtol(text, NULL, 10): the leading integer, 0 if there is none."""
     match = _LEADING_INT.match(text)
     return int(match[1]) if match else 0
@@ -184,7 +184,7 @@ class MarlinProtocol:
         if command.startswith("N"):
             is_m110 = "M110" in command
             number_at = command.find("N", 4) if is_m110 else -1
-            number = _strtol(command[number_at + 1:] if number_at >= 0 else command[1:])
+            number = strtol(command[number_at + 1:] if number_at >= 0 else command[1:])
             if number != self.last_n + 1 and not is_m110:
                 if self.last_n - 1 <= number <= self.last_n:
                     return None  # a resend crossed our Resend request: already have it
@@ -192,7 +192,7 @@ class MarlinProtocol:
             star = command.rfind("*")
             if star < 0:
                 return self._line_error(LineError.NO_CHECKSUM)
-            if _strtol(command[star + 1:]) != xor_checksum(command[:star]):
+            if strtol(command[star + 1:]) != xor_checksum(command[:star]):
                 return self._line_error(LineError.CHECKSUM)
             self.last_n = line_number = number
         elif self.saving_to_sd and not re.match(r"M29(?!\d)", command):

@@ -15,6 +15,7 @@ half read or a resend is awaited, and `idle()` after a second of quiet with noth
 
 from dataclasses import dataclass
 
+from emulator.protocols.marlin import strtol, xor_checksum
 from wire import repetier
 from wire.gcode import strip_comment
 
@@ -60,18 +61,6 @@ class Done:
 @dataclass(frozen=True)
 class Output:
     text: str
-
-
-def _strtol(text: str) -> int:
-    """C's strtol: the leading (signed) integer of `text`, 0 if there is none."""
-    text = text.lstrip(" ")
-    end = 1 if text[:1] in ("-", "+") else 0
-    while end < len(text) and text[end].isdigit():
-        end += 1
-    try:
-        return int(text[:end])
-    except ValueError:
-        return 0
 
 
 class RepetierProtocol:
@@ -179,14 +168,11 @@ class RepetierProtocol:
         n = None
         at = raw.find("N")
         if at >= 0:
-            n = _strtol(raw[at + 1:]) & _U32
+            n = strtol(raw[at + 1:]) & _U32
             self.act_line = n
         star = raw.find("*")
         if star >= 0:
-            checksum = 0
-            for char in raw[:star].encode("latin-1"):
-                checksum ^= char
-            if checksum != _strtol(raw[star + 1:]) & 0xFF:
+            if xor_checksum(raw[:star]) != strtol(raw[star + 1:]) & 0xFF:
                 return self._request_resend("Wrong checksum", error=True)
         elif self._last_was_binary:
             # A damaged binary command can look like an ASCII line: after binary, only a
@@ -204,7 +190,7 @@ class RepetierProtocol:
         else:
             self._format_errors = 0
         m_at = text.find("M")
-        m_code = _strtol(text[m_at + 1:]) & 0xFFFF if m_at >= 0 else None
+        m_code = strtol(text[m_at + 1:]) & 0xFFFF if m_at >= 0 else None
         return self._check_and_push(text, n, m_code)
 
     def _check_and_push(self, text: str, n: int | None, m_code: int | None):

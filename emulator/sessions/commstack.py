@@ -200,9 +200,7 @@ class CommStackSession:
         sd = self.printer.sd
         if not isinstance(name, str) or not name.strip("/ ") or not sd.mounted:
             return None
-        root = sd.root.resolve()
-        path = (root / name.strip().lstrip("/")).resolve()
-        return path if root in path.parents else None  # nothing outside the card
+        return sd.path_on_card(name)
 
     def _save(self, data: bytes) -> bool:
         upload = self._upload

@@ -46,7 +46,6 @@ class Identity:
 Event = Ok | Resend | Skip | Identity | Line
 
 _OK = re.compile(r"ok(?:\s+(\d+))?\s*")
-_RESEND = re.compile(r"(?:resend|rs)\b:?\s*(?:N:?\s*)?(\d+)?", re.IGNORECASE)
 _SKIP = re.compile(r"skip\s+(\d+)\s*")
 _PROTOCOL = re.compile(r"\bREPETIER_PROTOCOL:(\d+)")
 
@@ -54,18 +53,18 @@ _PROTOCOL = re.compile(r"\bREPETIER_PROTOCOL:(\d+)")
 def parse_line(text: str) -> Event:
     if (match := _OK.fullmatch(text)) is not None:
         return Ok(int(match[1]) if match[1] else None)
-    if (match := _RESEND.match(text)) is not None:
-        return Resend(int(match[1]) if match[1] else None)
     if (match := _SKIP.fullmatch(text)) is not None:
         return Skip(int(match[1]))
     if text.startswith("FIRMWARE_NAME:"):
         match = _PROTOCOL.search(text)
         return Identity(int(match[1]) if match else 0, text)
     event = marlin.parse_line(text)
+    if isinstance(event, marlin.ResendRequest):
+        return Resend(event.line)
     if isinstance(event, marlin.LineError):
         return Line(LineKind.ERROR, text)  # the Resend that follows says what to do
-    if isinstance(event, (marlin.Ok, marlin.ResendRequest)):
-        return Line(LineKind.DATA, text)
+    if isinstance(event, marlin.Ok):
+        return Line(LineKind.DATA, text)  # `ok` with words Repetier does not say
     return event
 
 
