@@ -56,7 +56,7 @@ from enum import Enum, auto
 
 from host.codecs.marlin import PROBE, LineKind, Ok, encode_line, encode_sync
 from host.errors import PrinterHalted, PrinterNotResponding, PrinterReset
-from host.window import Ticket, is_long_command
+from host.window import CommandQueue, Ticket, is_long_command
 
 SYNC_COMMAND = "M110 N0"
 KEEPALIVE_INTERVAL = 2.0  # Marlin's DEFAULT_KEEPALIVE_INTERVAL; M113 changes it (up to 60 s)
@@ -115,7 +115,7 @@ class MarlinStats:
     probes: int = 0
 
 
-class MarlinSender:
+class MarlinSender(CommandQueue):
     def __init__(
         self,
         timeout: float = 2.0,
@@ -129,10 +129,9 @@ class MarlinSender:
         self.max_transmissions = max_transmissions
         self.stats = MarlinStats()
         self.window = 1
-        self._backlog: deque[Ticket] = deque()
+        self._open_queue()
         self._lines: deque[_Line] = deque()  # numbered, not done; the first is in flight
         self._history: deque[_Line] = deque(maxlen=HISTORY)
-        self._completed: list[Ticket] = []
         self._next_number = 1
         self._synced = False
         self._sync_line: _Line | None = None  # M110 N0, when the counter was not 0
@@ -149,15 +148,6 @@ class MarlinSender:
         self._keepalive_interval: float | None = None  # None until a busy line is seen
 
     # -- what the caller asks -----------------------------------------------------------
-    def submit(self, text: str) -> Ticket:
-        ticket = Ticket(text)
-        self._backlog.append(ticket)
-        return ticket
-
-    @property
-    def backlog(self) -> int:
-        return len(self._backlog)
-
     @property
     def synced(self) -> bool:
         return self._synced
@@ -182,10 +172,6 @@ class MarlinSender:
             and not self._probe_wanted
             and (not self._verify or self._confirmed >= self._next_number - 1)
         )
-
-    def take_completed(self) -> list[Ticket]:
-        done, self._completed = self._completed, []
-        return done
 
     # -- time and transmission -----------------------------------------------------------
     def poll(self, now: float) -> list[bytes]:

@@ -42,7 +42,7 @@ from host.codecs.repetier import (
     encode_command,
 )
 from host.errors import PrinterHalted, PrinterNotResponding, PrinterReset
-from host.window import Ticket, is_long_command
+from host.window import CommandQueue, Ticket, is_long_command
 from wire import repetier
 
 RECEIVE_CACHE = 127  # Repetier-Host's receiveCacheSize
@@ -77,7 +77,7 @@ class RepetierStats:
     ascii: int = 0
 
 
-class RepetierSender:
+class RepetierSender(CommandQueue):
     def __init__(
         self,
         timeout: float = 2.0,
@@ -93,7 +93,7 @@ class RepetierSender:
         self.stats = RepetierStats()
         self.binary_version = 1
         self.phase = Phase.SYNC
-        self._backlog: deque[Ticket] = deque()
+        self._open_queue()
         self._lines: deque[_Line] = deque()  # not yet acknowledged, in order
         self._next_send = 0  # index into _lines of the next line to (re)transmit
         self._resync = False  # a resend after binary: NULs first
@@ -101,22 +101,12 @@ class RepetierSender:
         self._next_number = 1
         self._sync_sent_at: float | None = None
         self._sync_sends = 0
-        self._completed: list[Ticket] = []
         self._last_heard = -math.inf
         self._keepalives = False
         self._want_drained = False
         self._drained = False  # `wait` since the last line went out: all of it has run
 
     # -- what the caller asks -----------------------------------------------------------
-    def submit(self, text: str) -> Ticket:
-        ticket = Ticket(text)
-        self._backlog.append(ticket)
-        return ticket
-
-    @property
-    def backlog(self) -> int:
-        return len(self._backlog)
-
     def request_drained(self) -> None:
         """Idle only once the printer has also run everything (its `wait`)."""
         self._want_drained = True
@@ -129,10 +119,6 @@ class RepetierSender:
             and not self._lines
             and (self._drained or not self._want_drained)
         )
-
-    def take_completed(self) -> list[Ticket]:
-        done, self._completed = self._completed, []
-        return done
 
     # -- time and transmission -----------------------------------------------------------
     def poll(self, now: float) -> list[bytes]:

@@ -57,6 +57,29 @@ class Ticket:
     confirmed: bool = False
 
 
+class CommandQueue:
+    """What every sender keeps for its caller: commands submitted and not yet taken on, and
+    tickets completed inside poll() or an event handler, handed over by take_completed()."""
+
+    def _open_queue(self) -> None:
+        self._backlog: deque[Ticket] = deque()
+        self._completed: list[Ticket] = []
+
+    def submit(self, text: str) -> Ticket:
+        ticket = Ticket(text)
+        self._backlog.append(ticket)
+        return ticket
+
+    @property
+    def backlog(self) -> int:
+        return len(self._backlog)
+
+    def take_completed(self) -> list[Ticket]:
+        """Completed tickets, oldest first, each handed over once."""
+        done, self._completed = self._completed, []
+        return done
+
+
 @dataclass(eq=False)
 class _Packet:
     ticket: Ticket
@@ -84,7 +107,7 @@ class WindowStats:
 
 
 @dataclass
-class GoBackNWindow:
+class GoBackNWindow(CommandQueue):
     window: int = 3
     timeout: float = 2.0
     long_timeout: float = 300.0
@@ -96,13 +119,12 @@ class GoBackNWindow:
     def __post_init__(self) -> None:
         if not 1 <= self.window <= 32:
             raise ValueError("window must be 1 to 32 packets")
-        self._backlog: deque[Ticket] = deque()
+        self._open_queue()
         self._in_flight: list[_Packet] = []
         self._next_seq = self.first_seq
         self._echo_seq: int | None = None  # the `r` NN whose echoes we expect
         self._echoes_left = 0
         self._synchronised = False  # has the printer answered with a sequence number of ours?
-        self._expired: list[Ticket] = []  # completed by a timer, not by a frame: for take_completed()
         self._refusals = 0  # rejects of the same packet in a row, with no progress between
         self._refused_seq: int | None = None
         self._hold_until = -math.inf  # no (re)transmission before this
@@ -110,15 +132,6 @@ class GoBackNWindow:
         self._printer_room: int | None = None
 
     # -- what the caller asks -----------------------------------------------------------
-    def submit(self, text: str) -> Ticket:
-        ticket = Ticket(text)
-        self._backlog.append(ticket)
-        return ticket
-
-    @property
-    def backlog(self) -> int:
-        return len(self._backlog)
-
     @property
     def in_flight(self) -> int:
         return len(self._in_flight)
@@ -185,7 +198,7 @@ class GoBackNWindow:
         while self._in_flight:
             head = self._in_flight[0]
             if head.state is PacketState.RECEIVED and self._due(head) <= now:
-                self._expired += self._complete(1, (), confirmed=False)
+                self._completed += self._complete(1, (), confirmed=False)  # by a timer
                 continue
             break
         for index, packet in enumerate(self._in_flight):
@@ -202,11 +215,6 @@ class GoBackNWindow:
     def _go_back(self, index: int) -> None:
         for packet in self._in_flight[index:]:
             packet.needs_transmit = True
-
-    def take_completed(self) -> list[Ticket]:
-        """Tickets a timer completed during poll() (an `o` lost for good), oldest first."""
-        done, self._expired = self._expired, []
-        return done
 
     # -- what the printer says -----------------------------------------------------------
     def on_ack(self, seq: int, room: int, response: tuple[str, ...], now: float) -> list[Ticket]:
