@@ -1,7 +1,8 @@
 """fake-marlin's host client: stream G-code to any printer on a serial port."""
 
-from host.client import PROTOCOLS, PrintSummary, open_printer
-from host.errors import (
+from fake_marlin.host.connect import PROTOCOLS, open_printer
+from fake_marlin.host.shell import PrintSummary
+from fake_marlin.host.errors import (
     CommandError,
     ConnectionLost,
     HostError,

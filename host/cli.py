@@ -7,16 +7,10 @@ import time
 
 import trio
 
-from host.client import (
-    DEFAULT_BAUDRATE,
-    PROTOCOLS,
-    ClientOptions,
-    load_job,
-    open_printer,
-    sole_exception,
-)
-from host.codecs import marlin, ultimaker
-from host.errors import HostError, RemoteError
+from fake_marlin.host.connect import DEFAULT_BAUDRATE, PROTOCOLS, load_job, open_printer
+from fake_marlin.host.shell import ClientOptions, sole_exception
+from fake_marlin.host.codecs import marlin, ultimaker
+from fake_marlin.host.errors import HostError, RemoteError
 
 
 def _positive(kind):

@@ -1,9 +1,10 @@
 """Reading a G-code job: the commands a host sends, with the line each came from."""
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
-from host.errors import UsageError
-from wire.gcode import strip_comment
+from fake_marlin.host.errors import CommandError, UsageError
+from fake_marlin.wire.gcode import strip_comment
 
 
 @dataclass(frozen=True)
@@ -25,3 +26,14 @@ def read_job(path: str) -> list[JobCommand]:
         for number, line in enumerate(text.splitlines(), start=1)
         if (command := strip_comment(line))
     ]
+
+
+def checked_job(path: str, check: Callable[[str], object]) -> list[JobCommand]:
+    """Read a job and check every command can be sent, before any is."""
+    job = read_job(path)
+    for command in job:
+        try:
+            check(command.text)
+        except CommandError as error:
+            raise CommandError(f"{path}:{command.line_number}: {error}") from None
+    return job

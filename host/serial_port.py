@@ -6,7 +6,7 @@ import os
 import serial
 import trio
 
-from host.errors import ConnectionLost, PortError
+from fake_marlin.host.errors import ConnectionLost, PortError
 
 
 class SerialPort:

@@ -5,10 +5,10 @@ import pytest
 import trio
 import trio.testing
 
-from emulator.journal import Journal
-from emulator.link.memory import MemoryLink
-from emulator.printer.model import Printer
-from emulator.server import PrinterServer, ServerConfig
+from fake_marlin.emulator.journal.writer import Journal
+from fake_marlin.emulator.link.memory import MemoryLink
+from fake_marlin.emulator.printer.model import Printer
+from fake_marlin.emulator.server.lifecycle import PrinterServer, ServerConfig
 
 
 class RunningPrinter:

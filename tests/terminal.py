@@ -43,7 +43,7 @@ class Terminal:
 
 def numbered(n: int, command: str) -> str:
     """`N<n> <command>*<checksum>` as hosts send it."""
-    from emulator.protocols.marlin import xor_checksum
+    from fake_marlin.emulator.protocols.marlin import xor_checksum
 
     body = f"N{n} {command}"
     return f"{body}*{xor_checksum(body)}"

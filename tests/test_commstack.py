@@ -9,15 +9,15 @@ import trio.testing
 from hypothesis import given
 from hypothesis import strategies as st
 
-from emulator.faults import FaultConfig, parse_fault
-from emulator.printer.model import Printer, PrinterConfig
-from emulator.protocols.commstack import CommStackProtocol, FrameRejected, RequestReceived
-from emulator.server import ServerConfig
-from emulator.verify import is_host_command
-from host.client import connect
-from host.commstack_endpoint import CommStackEndpoint
+from fake_marlin.emulator.faults.layer import FaultConfig, parse_fault
+from fake_marlin.emulator.printer.model import Printer, PrinterConfig
+from fake_marlin.emulator.protocols.commstack import CommStackProtocol, FrameRejected, RequestReceived
+from fake_marlin.emulator.server.lifecycle import ServerConfig
+from fake_marlin.emulator.journal.verify import is_host_command
+from fake_marlin.host.connect import connect
+from fake_marlin.host.cores.commstack import CommStackEndpoint
 from tests.conftest import running_printer
-from wire.commstack import (
+from fake_marlin.wire.commstack import (
     BadData,
     BadHeader,
     CommType,

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from wire.gcode import canonical, strip_comment
+from fake_marlin.wire.gcode import canonical, strip_comment
 
 pytestmark = pytest.mark.e2e
 BIN = Path(sys.executable).parent
@@ -206,7 +206,7 @@ def test_bad_paths_for_the_sd_card_and_the_control_socket_are_refused(tmp_path):
 
 
 def test_the_control_channel_works_from_another_process(emulator, tmp_path):
-    from emulator.control_client import ControlClient
+    from fake_marlin.emulator.control.client import ControlClient
 
     printer = emulator("--protocol", "marlin", "--control", str(tmp_path / "printer.control"))
     with ControlClient(str(tmp_path / "printer.control")) as control:

@@ -2,9 +2,9 @@
 
 import pytest
 
-from emulator.fault_rules import FaultKind, FaultRule, Trigger
-from emulator.printer import failures
-from emulator.printer.model import Printer, PrinterConfig
+from fake_marlin.emulator.faults.rules import FaultKind, FaultRule, Trigger
+from fake_marlin.emulator.printer import failures
+from fake_marlin.emulator.printer.model import Printer, PrinterConfig
 
 ONCE = Trigger(nth=1)
 

@@ -4,7 +4,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from emulator.faults import FaultConfig, FaultLayer, LineFaults, parse_fault
+from fake_marlin.emulator.faults.layer import FaultConfig, FaultLayer, LineFaults, parse_fault
 
 
 def joined(segments) -> bytes:
@@ -56,7 +56,7 @@ def test_corrupt_lines_damages_one_character_and_never_a_line_end(lines, seed):
     assert damaged == layer.stats[next(iter(layer.stats))].lines_corrupted
 
 
-from emulator.fault_rules import FaultKind, FaultPlan, FaultRule, Trigger  # noqa: E402
+from fake_marlin.emulator.faults.rules import FaultKind, FaultPlan, FaultRule, Trigger  # noqa: E402
 
 
 def lines_through(layer: FaultLayer, lines: list[str], direction="to_host") -> list[str]:
@@ -86,7 +86,7 @@ def test_unit_faults_act_on_whole_lines(kind, expected):
 
 
 def test_ultimaker_packets_are_units_however_they_arrive():
-    from wire.ultimaker import encode_packet
+    from fake_marlin.wire.ultimaker import encode_packet
 
     packets = [encode_packet(n, b"G1 X%d" % n) for n in range(5)]
     rule = FaultRule(FaultKind.DROP, Trigger(nth=3), direction="to-printer")

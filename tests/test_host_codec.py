@@ -4,8 +4,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from emulator.protocols.ultimaker import CommandReceived, UltimakerProtocol
-from host.codecs.ultimaker import (
+from fake_marlin.emulator.protocols.ultimaker import CommandReceived, UltimakerProtocol
+from fake_marlin.host.codecs.ultimaker import (
     Ack,
     CorruptFrame,
     FrameParser,
@@ -16,9 +16,9 @@ from host.codecs.ultimaker import (
     check_command,
     encode_command,
 )
-from host.codecs.lines import MAX_LINE
-from host.errors import CommandError
-from wire.ultimaker import frame_body
+from fake_marlin.host.codecs.lines import MAX_LINE
+from fake_marlin.host.errors import CommandError
+from fake_marlin.wire.ultimaker import frame_body
 
 printable = st.text(alphabet=st.characters(min_codepoint=0x20, max_codepoint=0x7E), min_size=1, max_size=96)
 

@@ -5,8 +5,8 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from emulator.protocols.marlin import EmergencyCommand, LineReceived, LineRejected, MarlinProtocol
-from host.codecs.marlin import (
+from fake_marlin.emulator.protocols.marlin import EmergencyCommand, LineReceived, LineRejected, MarlinProtocol
+from fake_marlin.host.codecs.marlin import (
     MAX_COMMAND,
     PROBE,
     Line,
@@ -21,7 +21,7 @@ from host.codecs.marlin import (
     encode_sync,
     parse_line,
 )
-from host.errors import CommandError
+from fake_marlin.host.errors import CommandError
 
 TEMPERATURES = "T:21.00 /0.00 B:21.00 /0.00 @:0 B@:0"
 

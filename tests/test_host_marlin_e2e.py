@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from wire.gcode import strip_comment
+from fake_marlin.wire.gcode import strip_comment
 
 pytestmark = pytest.mark.e2e
 BIN = Path(sys.executable).parent

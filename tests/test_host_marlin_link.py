@@ -6,12 +6,13 @@ import random
 import pytest
 import trio
 
-from emulator.printer.model import Printer, PrinterConfig
-from emulator.server import ServerConfig
-from host.client import ClientOptions, connect
-from host.codecs.marlin import PROBE, LineKind, Ok, encode_line
-from host.errors import CommandError, PrinterHalted, PrinterNotResponding, PrinterReset
-from host.marlin_sender import MarlinSender
+from fake_marlin.emulator.printer.model import Printer, PrinterConfig
+from fake_marlin.emulator.server.lifecycle import ServerConfig
+from fake_marlin.host.connect import connect
+from fake_marlin.host.shell import ClientOptions
+from fake_marlin.host.codecs.marlin import PROBE, LineKind, Ok, encode_line
+from fake_marlin.host.errors import CommandError, PrinterHalted, PrinterNotResponding, PrinterReset
+from fake_marlin.host.cores.marlin import MarlinSender
 from tests.conftest import running_printer
 from tests.faults import LineDroppingStream
 from tests.terminal import Terminal, numbered
@@ -155,7 +156,7 @@ async def test_damage_in_both_directions_loses_and_repeats_nothing(autojump_cloc
 
 
 async def test_damage_with_the_printers_own_fault_layer(autojump_clock):
-    from emulator.faults import FaultConfig, LineFaults
+    from fake_marlin.emulator.faults.layer import FaultConfig, LineFaults
 
     faults = FaultConfig(to_host=LineFaults(bit_error_rate=2e-4, drop_rate=2e-3), seed=3)
     async with running_printer(ServerConfig(protocol="marlin", faults=faults)) as printer:

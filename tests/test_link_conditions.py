@@ -3,7 +3,7 @@
 import pytest
 import trio
 
-from emulator.link.conditions import LinkConditions, Pipe
+from fake_marlin.emulator.link.conditions import LinkConditions, Pipe
 
 
 async def deliveries(conditions: LinkConditions, chunks: list[bytes], seed: int = 0):

@@ -4,7 +4,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from emulator.protocols.marlin import (
+from fake_marlin.emulator.protocols.marlin import (
     EmergencyCommand,
     LineError,
     LineReceived,

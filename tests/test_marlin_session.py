@@ -4,11 +4,11 @@ from contextlib import asynccontextmanager
 
 import trio
 
-from emulator.printer.model import Printer, PrinterConfig
-from emulator.server import ServerConfig
+from fake_marlin.emulator.printer.model import Printer, PrinterConfig
+from fake_marlin.emulator.server.lifecycle import ServerConfig
 from tests.conftest import running_printer
 from tests.terminal import Terminal, numbered
-from wire.ultimaker import encode_packet
+from fake_marlin.wire.ultimaker import encode_packet
 
 TEMPERATURES = "T:21.00 /0.00 B:21.00 /0.00 @:0 B@:0"
 

@@ -2,8 +2,8 @@
 
 import re
 
-from emulator.printer.model import Printer, PrinterConfig
-from emulator.server import ServerConfig
+from fake_marlin.emulator.printer.model import Printer, PrinterConfig
+from fake_marlin.emulator.server.lifecycle import ServerConfig
 from tests.conftest import running_printer
 from tests.terminal import Terminal
 

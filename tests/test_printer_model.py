@@ -2,7 +2,7 @@
 
 import pytest
 
-from emulator.printer.model import Printer, Reply, Sleep
+from fake_marlin.emulator.printer.model import Printer, Reply, Sleep
 
 
 def run(printer: Printer, line: str, now: float) -> tuple[Reply, float]:

@@ -20,7 +20,7 @@ from pathlib import Path
 import pytest
 
 from tests.hosts import venvs
-from wire.gcode import strip_comment
+from fake_marlin.wire.gcode import strip_comment
 
 pytestmark = pytest.mark.e2e
 HOSTS = Path(__file__).parent / "hosts"

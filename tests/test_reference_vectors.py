@@ -2,10 +2,10 @@
 
 import pytest
 
-from emulator.protocols.ultimaker import CommandReceived, RoomChanged, UltimakerProtocol
-from host.codecs.ultimaker import Ack, RoomInfo, parse_line
-from wire.checksums import crc8_smbus, crc16_ccitt_false
-from wire.ultimaker import encode_packet, frame_body
+from fake_marlin.emulator.protocols.ultimaker import CommandReceived, RoomChanged, UltimakerProtocol
+from fake_marlin.host.codecs.ultimaker import Ack, RoomInfo, parse_line
+from fake_marlin.wire.checksums import crc8_smbus, crc16_ccitt_false
+from fake_marlin.wire.ultimaker import encode_packet, frame_body
 
 
 def test_check_values_of_both_crcs():

@@ -8,21 +8,21 @@ import trio.testing
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from emulator.faults import FaultConfig, parse_fault
-from emulator.protocols.repetier import (
+from fake_marlin.emulator.faults.layer import FaultConfig, parse_fault
+from fake_marlin.emulator.protocols.repetier import (
     CommandReceived,
     CommandRejected,
     Done,
     EmergencyStop,
     RepetierProtocol,
 )
-from emulator.server import ServerConfig
-from emulator.verify import verify
-from host.client import connect
-from host.codecs import repetier as host_codec
+from fake_marlin.emulator.server.lifecycle import ServerConfig
+from fake_marlin.emulator.journal.verify import verify
+from fake_marlin.host.connect import connect
+from fake_marlin.host.codecs import repetier as host_codec
 from tests.conftest import running_printer
-from wire import repetier
-from wire.gcode import canonical
+from fake_marlin.wire import repetier
+from fake_marlin.wire.gcode import canonical
 
 VECTORS = [  # PROTOCOLS.md section 2
     ("G28", 1, False, "850001001ca2ba"),

@@ -6,8 +6,8 @@ from pathlib import Path
 
 import pytest
 
-from emulator.scenario import ScenarioError, load
-from emulator.scenario_run import report, run_scenario
+from fake_marlin.emulator.scenario.definition import ScenarioError, load
+from fake_marlin.emulator.scenario.run import report, run_scenario
 
 SCENARIOS = sorted((Path(__file__).parent.parent / "scenarios").glob("*.toml"))
 

@@ -11,7 +11,7 @@ import trio
 from hypothesis import given
 from hypothesis import strategies as st
 
-from emulator.protocols.stk500 import (
+from fake_marlin.emulator.protocols.stk500 import (
     MAX_BODY,
     LeftBootloader,
     MessageReceived,
@@ -20,11 +20,11 @@ from emulator.protocols.stk500 import (
     answer,
     encode_message,
 )
-from emulator.server import ServerConfig
-from emulator.sessions.stk500 import BYTE_TIMEOUT
+from fake_marlin.emulator.server.lifecycle import ServerConfig
+from fake_marlin.emulator.sessions.stk500 import BYTE_TIMEOUT
 from tests.conftest import running_printer
 from tests.terminal import Terminal, numbered
-from wire.ultimaker import encode_packet
+from fake_marlin.wire.ultimaker import encode_packet
 
 TEMPERATURES = "T:21.00 /0.00 B:21.00 /0.00 @:0 B@:0"
 ENTER = bytes((0x10, 0xC8, 0x64, 0x19, 0x20, 0x00, 0x53, 0x03, 0xAC, 0x53, 0x00, 0x00))

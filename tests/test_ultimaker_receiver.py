@@ -4,7 +4,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from emulator.protocols.ultimaker import (
+from fake_marlin.emulator.protocols.ultimaker import (
     CommandDone,
     CommandReceived,
     OutOfBand,
@@ -14,7 +14,7 @@ from emulator.protocols.ultimaker import (
     RoomChanged,
     UltimakerProtocol,
 )
-from wire.ultimaker import encode_packet, frame_body
+from fake_marlin.wire.ultimaker import encode_packet, frame_body
 
 
 def feed(protocol: UltimakerProtocol, data: bytes) -> list:

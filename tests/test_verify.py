@@ -13,9 +13,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-import emulator.verify as verify_module
-from emulator.verify import Kind, job_commands, verify
-from emulator.verify_cli import report
+import fake_marlin.emulator.journal.verify as verify_module
+from fake_marlin.emulator.journal.verify import Kind, job_commands, verify
+from fake_marlin.emulator.cli.verify import report
 
 MISSING, DUPLICATED, REORDERED, EXTRA = Kind.MISSING, Kind.DUPLICATED, Kind.REORDERED, Kind.EXTRA
 BIN = Path(sys.executable).parent

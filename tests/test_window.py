@@ -2,8 +2,9 @@
 
 import pytest
 
-from host.errors import PrinterNotResponding, PrinterReset
-from host.window import GoBackNWindow, is_long_command
+from fake_marlin.host.errors import PrinterNotResponding, PrinterReset
+from fake_marlin.host.cores.queue import is_long_command
+from fake_marlin.host.cores.ultimaker import GoBackNWindow
 
 
 def seqs(transmits):

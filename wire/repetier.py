@@ -12,7 +12,7 @@ import re
 import struct
 from dataclasses import dataclass
 
-from wire.gcode import NUMBER, float32, number_text
+from fake_marlin.wire.gcode import NUMBER, float32, number_text
 
 MARKER = 0x0080  # bit 7: always set, so a binary command's first byte is never ASCII
 BIT_N, BIT_M, BIT_G = 0x0001, 0x0002, 0x0004

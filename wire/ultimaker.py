@@ -4,7 +4,7 @@ Host->printer packets (v2): FF FF seq len payload crc16-big-endian.
 Printer->host frames (v3): "\\n" K SS PP CC "\\n", CC = CRC8 over the ASCII of K SS PP.
 """
 
-from wire.checksums import crc8_smbus, crc16_ccitt_false
+from fake_marlin.wire.checksums import crc8_smbus, crc16_ccitt_false
 
 HEADER_BYTE = 0xFF
 SEQUENCE_MODULUS = 255  # 0..254; 255 would look like a header byte

@@ -8,8 +8,8 @@ import math
 
 import trio
 
-from emulator.link.pty import HostOpened
-from host.errors import ConnectionLost  # the in-memory host end fails as a serial port does
+from fake_marlin.emulator.link.pty import HostOpened
+from fake_marlin.host.errors import ConnectionLost  # the in-memory host end fails as a serial port does
 
 
 class MemoryLink:

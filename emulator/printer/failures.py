@@ -4,7 +4,7 @@ The messages are Marlin 2.1's: `_temp_error()` prints the reason and the heater,
 halts the printer until it is reset.
 """
 
-from emulator.fault_rules import FaultKind, FaultRule
+from fake_marlin.emulator.faults.rules import FaultKind, FaultRule
 
 _THERMAL_REASONS = {
     FaultKind.THERMAL_RUNAWAY: "Thermal Runaway",

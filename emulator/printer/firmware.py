@@ -1,7 +1,7 @@
 """Firmware-level G-codes: identity (M115), messages (M117/M118), debug, halt and host prompts."""
 
-from emulator.printer.gcode import Command
-from emulator.printer.steps import reply
+from fake_marlin.emulator.printer.gcode import Command
+from fake_marlin.emulator.printer.steps import reply
 
 DEBUG_FLAGS = ("ECHO", "INFO", "ERRORS", "DRYRUN", "COMMUNICATION", "LEVELING")
 

@@ -2,7 +2,7 @@
 
 from dataclasses import dataclass, field
 
-from wire.gcode import WORD, strip_comment
+from fake_marlin.wire.gcode import WORD, strip_comment
 
 
 @dataclass(frozen=True)

@@ -1,8 +1,8 @@
 """Temperature and fan G-codes: M104/M109, M140/M190, M105, M155, M106/M107 and T<n>."""
 
-from emulator.printer.failures import thermal_error
-from emulator.printer.gcode import Command
-from emulator.printer.steps import Reply, Report, Sleep, reply
+from fake_marlin.emulator.printer.failures import thermal_error
+from fake_marlin.emulator.printer.gcode import Command
+from fake_marlin.emulator.printer.steps import Reply, Report, Sleep, reply
 
 # Marlin's defaults: a heater must stay within TEMP_WINDOW of target for TEMP_RESIDENCY_TIME.
 TEMP_WINDOW = 1.0

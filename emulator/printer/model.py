@@ -11,11 +11,11 @@ from collections.abc import Generator
 from dataclasses import dataclass
 from pathlib import Path
 
-from emulator.printer import firmware, heating, motion, sdcard
-from emulator.printer.gcode import Command, parse
-from emulator.printer.planner import Planner
-from emulator.printer.steps import Reply, Report, Sleep, Step
-from emulator.printer.thermal import BED, HOTEND, Heater
+from fake_marlin.emulator.printer import firmware, heating, motion, sdcard
+from fake_marlin.emulator.printer.gcode import Command, parse
+from fake_marlin.emulator.printer.planner import Planner
+from fake_marlin.emulator.printer.steps import Reply, Report, Sleep, Step
+from fake_marlin.emulator.printer.thermal import BED, HOTEND, Heater
 
 __all__ = ["Printer", "PrinterConfig", "Reply", "Report", "Sleep", "Step"]
 

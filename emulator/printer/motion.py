@@ -3,9 +3,9 @@
 import math
 from dataclasses import dataclass, field
 
-from emulator.printer.gcode import Command
-from emulator.printer.planner import move_time
-from emulator.printer.steps import Sleep, reply
+from fake_marlin.emulator.printer.gcode import Command
+from fake_marlin.emulator.printer.planner import move_time
+from fake_marlin.emulator.printer.steps import Sleep, reply
 
 AXES = "XYZE"
 MM_PER_ARC_SEGMENT = 1.0

@@ -9,9 +9,9 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from emulator.printer.gcode import Command
-from emulator.printer.steps import reply
-from wire.gcode import strip_comment
+from fake_marlin.emulator.printer.gcode import Command
+from fake_marlin.emulator.printer.steps import reply
+from fake_marlin.wire.gcode import strip_comment
 
 _SHORT_OK = re.compile(r"[A-Z0-9_$%'\-@~`!(){}^#&]+")
 

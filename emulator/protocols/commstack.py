@@ -9,7 +9,7 @@ requests are answered; responses from the other side are passed on and never ans
 
 from dataclasses import dataclass
 
-from wire.commstack import (
+from fake_marlin.wire.commstack import (
     BadData,
     BadHeader,
     CommType,

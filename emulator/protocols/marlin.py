@@ -12,7 +12,7 @@ import re
 from dataclasses import dataclass
 from enum import Enum, auto
 
-from wire.gcode import remove_paren_comments
+from fake_marlin.wire.gcode import remove_paren_comments
 
 MAX_CMD_SIZE = 96
 BUFSIZE = 4

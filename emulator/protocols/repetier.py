@@ -15,9 +15,9 @@ half read or a resend is awaited, and `idle()` after a second of quiet with noth
 
 from dataclasses import dataclass
 
-from emulator.protocols.marlin import strtol, xor_checksum
-from wire import repetier
-from wire.gcode import strip_comment
+from fake_marlin.emulator.protocols.marlin import strtol, xor_checksum
+from fake_marlin.wire import repetier
+from fake_marlin.wire.gcode import strip_comment
 
 MAX_CMD_SIZE = 96
 GCODE_BUFFER_SIZE = 1  # Repetier.h: one parsed command waits; the rest stays in the RX buffer

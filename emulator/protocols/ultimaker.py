@@ -9,7 +9,7 @@ Mirrors UltimakerMarlin's SerialProtocol::readCommand byte for byte.
 from dataclasses import dataclass
 from enum import Enum, auto
 
-from wire import ultimaker as wire
+from fake_marlin.wire import ultimaker as wire
 
 
 class ReceiverState(Enum):

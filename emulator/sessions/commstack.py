@@ -23,18 +23,18 @@ from pathlib import Path
 
 import trio
 
-from emulator.journal import Journal
-from emulator.printer.model import Printer
-from emulator.printer.sdcard import OpenFile
-from emulator.protocols.commstack import (
+from fake_marlin.emulator.journal.writer import Journal
+from fake_marlin.emulator.printer.model import Printer
+from fake_marlin.emulator.printer.sdcard import OpenFile
+from fake_marlin.emulator.protocols.commstack import (
     CommStackProtocol,
     RequestReceived,
     Response,
     ResponseReceived,
 )
-from emulator.sessions.driver import run_command
-from wire.commstack import MAX_DATA, CommType, Packet, Task, encode_packet
-from wire.gcode import strip_comment
+from fake_marlin.emulator.sessions.driver import run_command
+from fake_marlin.wire.commstack import MAX_DATA, CommType, Packet, Task, encode_packet
+from fake_marlin.wire.gcode import strip_comment
 
 BUILD_NUMBER = 109  # mk20 Application.h FIRMWARE_BUILDNR
 PING_INTERVAL = 5.0

@@ -6,10 +6,10 @@ from enum import Enum
 
 import trio
 
-from emulator.protocols.repetier import MAX_CMD_SIZE
-from emulator.protocols.stk500 import MESSAGE_START
-from wire import repetier
-from wire.commstack import starts_with_header
+from fake_marlin.emulator.protocols.repetier import MAX_CMD_SIZE
+from fake_marlin.emulator.protocols.stk500 import MESSAGE_START
+from fake_marlin.wire import repetier
+from fake_marlin.wire.commstack import starts_with_header
 
 PRINTABLE = frozenset(range(0x20, 0x7F)) | {0x0A, 0x0D}
 # A CommStack frame starts with its COBS code byte: the distance to the header's first zero,

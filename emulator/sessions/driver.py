@@ -4,10 +4,10 @@ from collections.abc import Callable
 
 import trio
 
-from emulator.journal import Journal
-from emulator.printer.gcode import parse
-from emulator.printer.model import Printer, Reply, Report, Sleep
-from wire.gcode import strip_comment
+from fake_marlin.emulator.journal.writer import Journal
+from fake_marlin.emulator.printer.gcode import parse
+from fake_marlin.emulator.printer.model import Printer, Reply, Report, Sleep
+from fake_marlin.wire.gcode import strip_comment
 
 
 async def run_command(

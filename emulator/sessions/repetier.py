@@ -11,10 +11,10 @@ from collections.abc import Callable
 
 import trio
 
-from emulator.journal import Journal
-from emulator.printer.gcode import Command, parse
-from emulator.printer.model import Printer, Reply
-from emulator.protocols.repetier import (
+from fake_marlin.emulator.journal.writer import Journal
+from fake_marlin.emulator.printer.gcode import Command, parse
+from fake_marlin.emulator.printer.model import Printer, Reply
+from fake_marlin.emulator.protocols.repetier import (
     STALL_TIMEOUT,
     WAIT_INTERVAL,
     CommandReceived,
@@ -23,7 +23,7 @@ from emulator.protocols.repetier import (
     Output,
     RepetierProtocol,
 )
-from emulator.sessions.driver import hold_queue_full, run_command
+from fake_marlin.emulator.sessions.driver import hold_queue_full, run_command
 
 VERSION = "1.0.4"
 KEEP_ALIVE_INTERVAL = 2.0  # Repetier.h's KEEP_ALIVE_INTERVAL, 2000 ms

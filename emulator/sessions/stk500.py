@@ -9,7 +9,7 @@ from collections.abc import Callable
 
 import trio
 
-from emulator.protocols.stk500 import LeftBootloader, MessageReceived, Reply, Stk500Protocol, answer
+from fake_marlin.emulator.protocols.stk500 import LeftBootloader, MessageReceived, Reply, Stk500Protocol, answer
 
 # stk500boot.c's recchar_timeout() polls the UART F_CPU / 2 times for each next byte, then jumps
 # to the firmware: some seconds on a 16 MHz board (the exact time is its compiled loop's).

@@ -5,9 +5,9 @@ from collections.abc import Callable
 
 import trio
 
-from emulator.journal import Journal
-from emulator.printer.model import Printer
-from emulator.protocols.ultimaker import (
+from fake_marlin.emulator.journal.writer import Journal
+from fake_marlin.emulator.printer.model import Printer
+from fake_marlin.emulator.protocols.ultimaker import (
     CommandDone,
     CommandReceived,
     OutOfBand,
@@ -16,7 +16,7 @@ from emulator.protocols.ultimaker import (
     RoomChanged,
     UltimakerProtocol,
 )
-from emulator.sessions.driver import hold_queue_full, run_command
+from fake_marlin.emulator.sessions.driver import hold_queue_full, run_command
 
 
 class UltimakerSession:

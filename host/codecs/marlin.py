@@ -11,8 +11,8 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from enum import Enum
 
-from host.codecs.lines import LineBuffer
-from host.errors import CommandError
+from fake_marlin.host.codecs.lines import LineBuffer
+from fake_marlin.host.errors import CommandError
 
 # Marlin keeps at most MAX_CMD_SIZE - 1 = 95 characters of a line. "N<9 digits> " and "*255"
 # take 15 of them, so a command of 80 characters fits until line number 10^9.

@@ -9,8 +9,8 @@ it has already, `wait` when idle, `busy:processing` / `busy:heating` while it wo
 import re
 from dataclasses import dataclass
 
-from host.codecs import marlin
-from wire import repetier
+from fake_marlin.host.codecs import marlin
+from fake_marlin.wire import repetier
 
 RESYNC = b"\0" * 32  # before a resend after binary: the firmware waits for 31 NULs in a row
 WIRE_NUMBER = 0xFFFF  # binary N is 16 bits, and the firmware compares numbers modulo 2^16

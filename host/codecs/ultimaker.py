@@ -4,9 +4,9 @@ import re
 from dataclasses import dataclass
 from enum import Enum
 
-from host.codecs.lines import LineBuffer
-from host.errors import CommandError
-from wire import ultimaker as wire
+from fake_marlin.host.codecs.lines import LineBuffer
+from fake_marlin.host.errors import CommandError
+from fake_marlin.wire import ultimaker as wire
 
 _FRAME = re.compile(r"([orq])([0-9A-F]{2})([0-9A-F]{2})([0-9A-F]{2})")
 

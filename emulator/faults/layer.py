@@ -9,7 +9,7 @@ import random
 from dataclasses import dataclass, field
 from enum import Enum
 
-from emulator.fault_rules import FaultKind, FaultPlan, FaultRule
+from fake_marlin.emulator.faults.rules import FaultKind, FaultPlan, FaultRule
 
 
 class Direction(Enum):

@@ -4,19 +4,19 @@ from dataclasses import dataclass
 
 import trio
 
-from emulator.fault_rules import LINK_KINDS, FaultKind, FaultRule
-from emulator.faults import FaultConfig, FaultLayer, Segment
-from emulator.journal import Journal
-from emulator.link.conditions import LinkConditions, Pipe
-from emulator.link.pty import HostOpened, PtyLink
-from emulator.printer import failures
-from emulator.printer.model import Printer
-from emulator.sessions.commstack import CommStackSession
-from emulator.sessions.detect import Detected, DetectingSession
-from emulator.sessions.marlin import MarlinSession
-from emulator.sessions.repetier import RepetierSession
-from emulator.sessions.stk500 import Stk500Session
-from emulator.sessions.ultimaker import UltimakerSession
+from fake_marlin.emulator.faults.rules import LINK_KINDS, FaultKind, FaultRule
+from fake_marlin.emulator.faults.layer import FaultConfig, FaultLayer, Segment
+from fake_marlin.emulator.journal.writer import Journal
+from fake_marlin.emulator.link.conditions import LinkConditions, Pipe
+from fake_marlin.emulator.link.pty import HostOpened, PtyLink
+from fake_marlin.emulator.printer import failures
+from fake_marlin.emulator.printer.model import Printer
+from fake_marlin.emulator.sessions.commstack import CommStackSession
+from fake_marlin.emulator.sessions.detect import Detected, DetectingSession
+from fake_marlin.emulator.sessions.marlin import MarlinSession
+from fake_marlin.emulator.sessions.repetier import RepetierSession
+from fake_marlin.emulator.sessions.stk500 import Stk500Session
+from fake_marlin.emulator.sessions.ultimaker import UltimakerSession
 
 PROTOCOLS = ("auto", "marlin", "ultimaker", "repetier", "commstack")
 

@@ -17,7 +17,7 @@ aligned exactly on its own; a stretch with more than MAX_EDITS differences (a jo
 job) is not aligned at all, its commands only paired by text, and the result says it is
 approximate.
 
-Pure: no I/O. `emulator.verify_cli` reads the files and prints the report.
+Pure: no I/O. `fake_marlin.emulator.cli.verify` reads the files and prints the report.
 """
 
 import bisect
@@ -27,7 +27,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from enum import Enum
 
-from wire.gcode import canonical, strip_comment
+from fake_marlin.wire.gcode import canonical, strip_comment
 
 HOST_COMMANDS = frozenset({"M105", "M110", "M113", "M114", "M115", "M155", "M27", "M400"})
 """Commands hosts send on their own: OctoPrint's `M110 N0`, `M115`, `M113 S2`, `M105` polls and

@@ -14,7 +14,7 @@ import struct
 from dataclasses import dataclass
 from enum import Enum, auto
 
-from wire.commstack import CommType, FrameSplitter, Packet, Task, decode_frame, encode_packet
+from fake_marlin.wire.commstack import CommType, FrameSplitter, Packet, Task, decode_frame, encode_packet
 
 BUILD_NUMBER = 1  # what this host answers the MK20's pings with, as the ESP answers its own
 

@@ -10,15 +10,15 @@ from pathlib import Path
 
 import trio
 
-from emulator.clock import ScaledClock
-from emulator.control import Controller, check_control_path, serve_control
-from emulator.faults import FaultConfig, parse_fault
-from emulator.scenario import PrinterSetup, ScenarioError
-from emulator.scenario import load as load_scenario
-from emulator.journal import Journal
-from emulator.link.pty import PtyLink
-from emulator.printer.model import DEFAULT_CAPABILITIES, Printer, PrinterConfig
-from emulator.server import PROTOCOLS, PrinterServer, ServerConfig
+from fake_marlin.emulator.server.clock import ScaledClock
+from fake_marlin.emulator.control.server import Controller, check_control_path, serve_control
+from fake_marlin.emulator.faults.layer import FaultConfig, parse_fault
+from fake_marlin.emulator.scenario.definition import PrinterSetup, ScenarioError
+from fake_marlin.emulator.scenario.definition import load as load_scenario
+from fake_marlin.emulator.journal.writer import Journal
+from fake_marlin.emulator.link.pty import PtyLink
+from fake_marlin.emulator.printer.model import DEFAULT_CAPABILITIES, Printer, PrinterConfig
+from fake_marlin.emulator.server.lifecycle import PROTOCOLS, PrinterServer, ServerConfig
 
 
 def _positive_float(text: str) -> float:
@@ -164,10 +164,10 @@ def _interrupt(signum, frame):
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     if argv[:1] == ["verify"]:
-        from emulator.verify_cli import main as verify_main
+        from fake_marlin.emulator.cli.verify import main as verify_main
         return verify_main(argv[1:])
     if argv[:1] == ["scenario"]:
-        from emulator.scenario_cli import main as scenario_main
+        from fake_marlin.emulator.cli.scenario import main as scenario_main
         return scenario_main(argv[1:])
     parser = build_parser()
     args = parser.parse_args(argv)

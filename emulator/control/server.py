@@ -17,9 +17,9 @@ import stat
 
 import trio
 
-from emulator.fault_rules import LINK_KINDS, FaultRule
-from emulator.printer import failures
-from emulator.scenario import TRIGGER_KEYS, ScenarioError, parse_fault_table
+from fake_marlin.emulator.faults.rules import LINK_KINDS, FaultRule
+from fake_marlin.emulator.printer import failures
+from fake_marlin.emulator.scenario.definition import TRIGGER_KEYS, ScenarioError, parse_fault_table
 
 MAX_REQUEST = 64 * 1024
 

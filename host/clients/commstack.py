@@ -22,13 +22,13 @@ from pathlib import Path
 
 import trio
 
-from host.client import ByteStream, ClientOptions, PrintSummary
-from host.codecs import marlin
-from host.commstack_endpoint import CommStackEndpoint, Outcome
-from host.errors import CommandError, PrinterHalted, PrinterNotResponding, RemoteError
-from host.gcode_file import read_job
-from wire.commstack import CHUNK_SIZE, MAX_DATA, Task
-from wire.gcode import strip_comment
+from fake_marlin.host.shell import ByteStream, ClientOptions, PrintSummary
+from fake_marlin.host.codecs import marlin
+from fake_marlin.host.cores.commstack import CommStackEndpoint, Outcome
+from fake_marlin.host.errors import CommandError, PrinterHalted, PrinterNotResponding, RemoteError
+from fake_marlin.host.gcode_file import read_job
+from fake_marlin.wire.commstack import CHUNK_SIZE, MAX_DATA, Task
+from fake_marlin.wire.gcode import strip_comment
 
 UPLOAD_ATTEMPTS = 3
 POLL_INTERVAL = 1.0  # seconds between M27 while the printer prints the job

@@ -29,8 +29,8 @@ from collections import deque
 from dataclasses import dataclass
 from enum import Enum, auto
 
-from host.codecs import marlin
-from host.codecs.repetier import (
+from fake_marlin.host.codecs import marlin
+from fake_marlin.host.codecs.repetier import (
     RESYNC,
     WIRE_NUMBER,
     Identity,
@@ -41,9 +41,9 @@ from host.codecs.repetier import (
     Skip,
     encode_command,
 )
-from host.errors import PrinterHalted, PrinterNotResponding, PrinterReset
-from host.window import CommandQueue, Ticket, is_long_command
-from wire import repetier
+from fake_marlin.host.errors import PrinterHalted, PrinterNotResponding, PrinterReset
+from fake_marlin.host.cores.queue import CommandQueue, Ticket, is_long_command
+from fake_marlin.wire import repetier
 
 RECEIVE_CACHE = 127  # Repetier-Host's receiveCacheSize
 KEEPALIVE_MARGIN = 5.0  # seconds of silence allowed once the printer sends busy: (every 2 s)

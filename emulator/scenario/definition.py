@@ -9,9 +9,9 @@ import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from emulator.fault_rules import LINK_KINDS, FaultKind, FaultRule, Trigger
-from emulator.faults import RATE_KINDS, FaultConfig, with_rate
-from emulator.link.conditions import LinkConditions
+from fake_marlin.emulator.faults.rules import LINK_KINDS, FaultKind, FaultRule, Trigger
+from fake_marlin.emulator.faults.layer import RATE_KINDS, FaultConfig, with_rate
+from fake_marlin.emulator.link.conditions import LinkConditions
 
 DIRECTIONS = ("to-printer", "to-host")
 PROTOCOLS = ("auto", "marlin", "ultimaker", "repetier", "commstack")
@@ -215,7 +215,7 @@ def parse_fault_table(entry, where: str) -> FaultRule | tuple[str, str, float]:
 
 
 def _job(path: Path, table: _Reader) -> tuple[tuple[str, ...], Path | None]:
-    from wire.gcode import strip_comment
+    from fake_marlin.wire.gcode import strip_comment
 
     file = table.get("file", str, None)
     moves = table.get("moves", int, None, minimum=1)

@@ -5,8 +5,8 @@ import json
 import sys
 from pathlib import Path
 
-from emulator.scenario import ScenarioError, load
-from emulator.scenario_run import report, run_scenario
+from fake_marlin.emulator.scenario.definition import ScenarioError, load
+from fake_marlin.emulator.scenario.run import report, run_scenario
 
 
 def scenario_files(paths: list[str]) -> list[Path]:

@@ -12,14 +12,15 @@ from pathlib import Path
 import trio
 import trio.testing
 
-from emulator.journal import Journal
-from emulator.link.memory import MemoryLink
-from emulator.printer.model import Printer, PrinterConfig
-from emulator.scenario import Scenario
-from emulator.server import PrinterServer, ServerConfig
-from emulator.verify import FAILURES, Kind, verify
-from host.client import ClientOptions, PrintSummary, connect, sole_exception
-from host.errors import ConnectionLost, HostError
+from fake_marlin.emulator.journal.writer import Journal
+from fake_marlin.emulator.link.memory import MemoryLink
+from fake_marlin.emulator.printer.model import Printer, PrinterConfig
+from fake_marlin.emulator.scenario.definition import Scenario
+from fake_marlin.emulator.server.lifecycle import PrinterServer, ServerConfig
+from fake_marlin.emulator.journal.verify import FAILURES, Kind, verify
+from fake_marlin.host.connect import connect
+from fake_marlin.host.shell import ClientOptions, PrintSummary, sole_exception
+from fake_marlin.host.errors import ConnectionLost, HostError
 
 # A scenario that has not finished after a simulated day is stuck, whatever it does.
 SIMULATED_TIME_LIMIT = 24 * 3600.0

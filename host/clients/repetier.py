@@ -1,13 +1,13 @@
-"""The trio client for Repetier-Firmware: the shared shell (host/client.py) around
-host/repetier_sender.py."""
+"""The trio client for Repetier-Firmware: the shared shell (fake_marlin.host.shell) around
+the Repetier sender (fake_marlin.host.cores.repetier)."""
 
 from collections.abc import Callable
 
 import trio
 
-from host.client import ByteStream, ClientOptions, _Client
-from host.codecs import repetier
-from host.repetier_sender import RepetierSender
+from fake_marlin.host.shell import ByteStream, ClientOptions, _Client
+from fake_marlin.host.codecs import repetier
+from fake_marlin.host.cores.repetier import RepetierSender
 
 
 class RepetierClient(_Client):

@@ -1,0 +1,1 @@
+"""The command-line programs: `fake-marlin`, its `scenario` and `verify` commands."""

@@ -1,0 +1,1 @@
+"""The journal of executed commands, and checking it against a job."""

@@ -1,0 +1,1 @@
+"""Scenario files (TOML) and running one with the built-in host in simulated time."""

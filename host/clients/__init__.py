@@ -1,0 +1,1 @@
+"""Thin trio clients, one per protocol, on the shared shell (fake_marlin.host.shell)."""

@@ -1,0 +1,74 @@
+"""Opening a printer: the client for a protocol, over a byte stream or a serial port."""
+
+from collections.abc import AsyncIterator, Callable
+from contextlib import asynccontextmanager
+
+import trio
+
+from fake_marlin.host.clients.commstack import CommStackClient
+from fake_marlin.host.clients.marlin import MarlinClient
+from fake_marlin.host.clients.repetier import RepetierClient
+from fake_marlin.host.clients.ultimaker import UltimakerClient
+from fake_marlin.host.errors import CommandError
+from fake_marlin.host.gcode_file import JobCommand, checked_job
+from fake_marlin.host.serial_port import SerialPort
+from fake_marlin.host.shell import ByteStream, ClientOptions, _Client, sole_exception
+
+DEFAULT_BAUDRATE = 250000
+PROTOCOLS = ("ultimaker", "marlin", "repetier", "commstack")
+
+
+def _client_class(protocol: str) -> type[_Client]:
+    clients = {
+        client.protocol: client
+        for client in (UltimakerClient, MarlinClient, RepetierClient, CommStackClient)
+    }
+    if protocol not in clients:
+        raise CommandError(f"unknown protocol {protocol!r}; choose from {', '.join(PROTOCOLS)}")
+    return clients[protocol]
+
+
+def load_job(path: str, protocol: str = "ultimaker") -> list[JobCommand]:
+    """Read a job and check every command can be sent, before any is."""
+    return checked_job(path, _client_class(protocol).check_command)
+
+
+@asynccontextmanager
+async def connect(
+    stream: ByteStream,
+    protocol: str = "ultimaker",
+    options: ClientOptions = ClientOptions(),
+    on_line: Callable | None = None,
+) -> AsyncIterator[_Client]:
+    """A client speaking `protocol` over an open byte stream."""
+    client = _client_class(protocol)(stream, options, on_line)
+    try:
+        async with trio.open_nursery() as nursery:
+            nursery.start_soon(client.run, nursery.cancel_scope)
+            try:
+                yield client
+            finally:
+                nursery.cancel_scope.cancel()
+    except BaseExceptionGroup as group:
+        # The caller's own error (or Ctrl-C) comes back as itself, not wrapped in a group.
+        raise sole_exception(group) from None
+    if client.failure is not None:
+        raise client.failure
+
+
+@asynccontextmanager
+async def open_printer(
+    port: str,
+    protocol: str = "ultimaker",
+    baudrate: int = DEFAULT_BAUDRATE,
+    options: ClientOptions = ClientOptions(),
+    on_line: Callable | None = None,
+) -> AsyncIterator[_Client]:
+    """Open a serial port (the emulator's pty or a real printer) and talk to the printer on it."""
+    _client_class(protocol)
+    serial_port = SerialPort.open(port, baudrate)
+    try:
+        async with connect(serial_port, protocol, options, on_line) as client:
+            yield client
+    finally:
+        serial_port.close()
