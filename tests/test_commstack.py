@@ -43,7 +43,7 @@ def frames(data: bytes) -> list[bytes]:
 
 # -- the wire -------------------------------------------------------------------------------
 def test_the_reference_ping():
-    """PROTOCOLS.md section 3: the 8-byte header with its padding byte, COBS, 0x00."""
+    """docs/protocols.md section 3: the 8-byte header with its padding byte, COBS, 0x00."""
     wire = encode_packet(PING)
     assert wire.hex() == "031901010101021a0100"
     assert decode_frame(wire[:-1]) == PING

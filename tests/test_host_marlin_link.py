@@ -244,7 +244,7 @@ async def test_an_ok_whose_error_and_resend_were_lost_is_not_taken_for_the_line(
 
 
 async def test_error_resend_and_ok_read_one_by_one_make_one_permission(autojump_clock):
-    """printcore's bug (HOSTS.md): the Resend line and the ok after it are one answer."""
+    """printcore's bug (docs/hosts.md): the Resend line and the ok after it are one answer."""
     async with running_printer(MARLIN) as printer:
         damage = nth(lambda line: line.startswith(b"N"), 20)
         stream = Meddler(

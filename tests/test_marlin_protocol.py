@@ -1,4 +1,5 @@
-"""Marlin's line protocol, against GCodeQueue::get_serial_commands() and PROTOCOLS.md section 6."""
+"""Marlin's line protocol, against GCodeQueue::get_serial_commands() and docs/protocols.md
+section 6."""
 
 import pytest
 from hypothesis import given, settings

@@ -1,4 +1,4 @@
-"""Every line a host parses matches the regexes OctoPrint 1.11 uses (HOSTS.md)."""
+"""Every line a host parses matches the regexes OctoPrint 1.11 uses (docs/hosts.md)."""
 
 import re
 

@@ -1,4 +1,4 @@
-"""The wire vectors of PROTOCOLS.md section 1, byte for byte."""
+"""The wire vectors of docs/protocols.md section 1, byte for byte."""
 
 import pytest
 

@@ -24,7 +24,7 @@ from tests.conftest import running_printer
 from fake_marlin.wire import repetier
 from fake_marlin.wire.gcode import canonical
 
-VECTORS = [  # PROTOCOLS.md section 2
+VECTORS = [  # docs/protocols.md section 2
     ("G28", 1, False, "850001001ca2ba"),
     ("G1 X10 Y20 F3000", 2, False, "9d01020001000020410000a04100803b45e586"),
     ("M117 Hello", 5, True, "83900000050500750048656c6c6f89aa"),
