@@ -1,7 +1,7 @@
 """Printrhub's CommStack frames (the ESP8266 <-> MK20 link of the Printrbot Simple 2016).
 
 A packet is an 8-byte header and up to 255 data bytes, COBS-encoded as one block (the `cobs`
-package is PacketSerial's algorithm) and ended by a 0x00 (PROTOCOLS.md section 3). The header
+package is PacketSerial's algorithm) and ended by a 0x00 (docs/protocols.md section 3). The header
 is the firmware's unpacked C struct, little-endian: taskID u8, commType u8, contentLength u8,
 one padding byte (sent as 00, ignored), dataCheckSum u16 (the data's byte sum) and checkSum u16
 (taskID + commType + contentLength + dataCheckSum), both mod 65536.
@@ -13,7 +13,7 @@ import struct
 from dataclasses import dataclass
 from enum import IntEnum
 
-from cobs import cobs
+from cobs import cobs  # type: ignore[import-untyped]  # the package has no type hints
 
 HEADER = struct.Struct("<BBBxHH")
 BUFFER_SIZE = 256  # COMM_STACK_BUFFER_SIZE: the MK20 reads at most this much of a frame
@@ -75,11 +75,6 @@ class Packet:
     comm_type: int
     data: bytes = b""
 
-    def describe(self) -> str:
-        task = Task(self.task).name if self.task in Task._value2member_map_ else str(self.task)
-        kind = CommType(self.comm_type).name if self.comm_type in CommType._value2member_map_ else str(self.comm_type)
-        return f"{task} {kind} ({len(self.data)} bytes)"
-
 
 @dataclass(frozen=True)
 class BadHeader:
@@ -125,20 +120,37 @@ def encode_packet(packet: Packet) -> bytes:
         packet.task, packet.comm_type, length, data_sum,
         header_checksum(packet.task, packet.comm_type, length, data_sum),
     )
-    return cobs.encode(header + packet.data) + MARKER
+    return _cobs_encode(header + packet.data) + MARKER
+
+
+def _cobs_encode(data: bytes) -> bytes:
+    encoded: bytes = cobs.encode(data)
+    return encoded
+
+
+def _cobs_decode(frame: bytes) -> bytes:
+    """cobs.DecodeError if `frame` is no COBS block."""
+    decoded: bytes = cobs.decode(frame)
+    return decoded
+
+
+def _unpack_header(raw: bytes) -> tuple[int, int, int, int, int]:
+    """taskID, commType, contentLength, dataCheckSum and checkSum from the start of `raw`."""
+    fields: tuple[int, int, int, int, int] = HEADER.unpack_from(raw)
+    return fields
 
 
 def decode_frame(frame: bytes) -> Decoded:
     """One frame (the bytes between two 0x00) as the MK20's CommStack::packetReceived sees it."""
     try:
-        raw = cobs.decode(frame)
+        raw = _cobs_decode(frame)
     except cobs.DecodeError:
         return Undecodable(frame)
     if not raw:
         return Undecodable(frame)
     if len(raw) < HEADER.size:
         return BadHeader(frame)
-    task, comm_type, length, data_sum, checksum = HEADER.unpack_from(raw)
+    task, comm_type, length, data_sum, checksum = _unpack_header(raw)
     if header_checksum(task, comm_type, length, data_sum) != checksum:
         return BadHeader(frame)
     data = raw[HEADER.size:HEADER.size + length]
@@ -169,7 +181,7 @@ def starts_with_header(data: bytes) -> bool | None:
         at += code
         if code < 0xFF:
             raw.append(0)
-    task, comm_type, length, data_sum, checksum = HEADER.unpack_from(bytes(raw[:HEADER.size]))
+    task, comm_type, length, data_sum, checksum = _unpack_header(bytes(raw[:HEADER.size]))
     return header_checksum(task, comm_type, length, data_sum) == checksum
 
 

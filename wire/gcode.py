@@ -27,7 +27,8 @@ _WORDS = re.compile(rf"(?:\s*[A-Za-z]\s*(?:{NUMBER})?)+\s*")
 
 def float32(value: float) -> float:
     """`value` as a float32 holds it (OverflowError if it cannot)."""
-    return struct.unpack("<f", struct.pack("<f", value))[0]
+    rounded: float = struct.unpack("<f", struct.pack("<f", value))[0]
+    return rounded
 
 
 def number_text(value: float) -> str:

@@ -1,9 +1,9 @@
 """Repetier's binary G-code commands: layout, Fletcher-16, and the text they stand for.
 
-Layout (Repetier-Firmware gcode.cpp computeBinarySize/parseBinary; PROTOCOLS.md section 2), all
-little-endian: u16 bits; V2 only: u16 bits2, then u8 textlen if there is text; N u16; M and G
-u8 in V1, u16 in V2; X Y Z E F f32; T u8; S P i32; V2 only: I J R D C H A B K L O f32; text
-(16 NUL-padded bytes in V1, textlen bytes in V2); Fletcher-16 sum1, sum2.
+Layout (Repetier-Firmware gcode.cpp computeBinarySize/parseBinary; docs/protocols.md
+section 2), all little-endian: u16 bits; V2 only: u16 bits2, then u8 textlen if there is
+text; N u16; M and G u8 in V1, u16 in V2; X Y Z E F f32; T u8; S P i32; V2 only: I J R D C H
+A B K L O f32; text (16 NUL-padded bytes in V1, textlen bytes in V2); Fletcher-16 sum1, sum2.
 
 Shared by the emulator (decoding) and the host (encoding). Pure: bytes and values only.
 """
@@ -31,7 +31,7 @@ class BadChecksum(ValueError):
     """The command's Fletcher-16 does not match: the firmware asks for a resend."""
 
 
-def fletcher16(data: bytes) -> tuple[int, int]:
+def fletcher16(data: bytes | bytearray) -> tuple[int, int]:
     sum1 = sum2 = 0
     for byte in data:
         sum1 = (sum1 + byte) % 255
@@ -172,10 +172,12 @@ class _Reader:
         return int.from_bytes(self._take(size), "little")
 
     def signed32(self) -> int:
-        return struct.unpack("<i", self._take(4))[0]
+        value: int = struct.unpack("<i", self._take(4))[0]
+        return value
 
     def f32(self) -> float:
-        return struct.unpack("<f", self._take(4))[0]
+        value: float = struct.unpack("<f", self._take(4))[0]
+        return value
 
     def rest(self) -> bytes:
         return self._data[self._at:]
@@ -214,7 +216,7 @@ def from_gcode(text: str, n: int | None = None, v2: bool = False) -> BinaryComma
     code = int(digits)
     if code > (0xFFFF if v2 else 0xFF) or (letter == "T" and code > 0xFF):
         return None
-    fields = {"m": None, "g": None}
+    fields: dict[str, int | None] = {"m": None, "g": None}
     params: list[tuple[str, float]] = []
     rest = words[1:]
     if letter == "T":

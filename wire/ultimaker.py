@@ -1,4 +1,4 @@
-"""Ultimaker serial protocol wire facts (PROTOCOLS.md section 1), shared by both ends.
+"""Ultimaker serial protocol wire facts (docs/protocols.md section 1), shared by both ends.
 
 Host->printer packets (v2): FF FF seq len payload crc16-big-endian.
 Printer->host frames (v3): "\\n" K SS PP CC "\\n", CC = CRC8 over the ASCII of K SS PP.
@@ -12,7 +12,6 @@ MAX_PAYLOAD = 96  # MAX_CMD_SIZE
 PAYLOAD_MIN_BYTE = 0x20
 PAYLOAD_MAX_BYTE = 0x7E
 PLANNER_ROOM_MAX = 15  # BLOCK_BUFFER_SIZE 16 holds at most 15 moves
-FRAME_KINDS = "orq"
 
 
 def payload_error(payload: bytes) -> str | None:

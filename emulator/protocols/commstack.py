@@ -40,6 +40,9 @@ class FrameRejected:
     answered: bool
 
 
+Event = RequestReceived | ResponseReceived | FrameRejected
+
+
 # Events in.
 @dataclass(frozen=True)
 class Response:
@@ -57,7 +60,7 @@ class CommStackProtocol:
     def receive_data(self, data: bytes) -> None:
         self._frames.receive_data(data)
 
-    def next_event(self) -> RequestReceived | ResponseReceived | FrameRejected | None:
+    def next_event(self) -> Event | None:
         frame = self._frames.next_frame()
         if frame is None:
             return None

@@ -48,6 +48,9 @@ class EmergencyCommand:
     text: str  # "M108", "M112", "M410" or "M876 S<n>"
 
 
+Event = LineReceived | LineRejected | EmergencyCommand
+
+
 # Events in.
 @dataclass(frozen=True)
 class Ok:
@@ -122,7 +125,7 @@ class MarlinProtocol:
     def queue_free(self) -> int:
         return self.queue_size - self._queued
 
-    def next_event(self) -> LineReceived | LineRejected | EmergencyCommand | None:
+    def next_event(self) -> Event | None:
         if self._emergencies:
             return self._emergencies.pop(0)
         position = 0

@@ -1,6 +1,6 @@
 """The printer side of Repetier's protocol, binary and ASCII mixed, as a sans-IO state machine.
 
-Mirrors Repetier-Firmware's GCode::readFromSerial and checkAndPushCommand (PROTOCOLS.md
+Mirrors Repetier-Firmware's GCode::readFromSerial and checkAndPushCommand (docs/protocols.md
 section 2): a command whose first byte has bit 7 set is binary (its length follows from its
 first bytes, its Fletcher-16 is checked), any other is an ASCII line; NUL bytes are ignored
 between commands. A numbered command must be last + 1; it is acknowledged `ok <N>` as soon as
@@ -52,6 +52,9 @@ class EmergencyStop:
     text: str
 
 
+Event = CommandReceived | CommandRejected | EmergencyStop
+
+
 # Events in.
 @dataclass(frozen=True)
 class Done:
@@ -101,7 +104,7 @@ class RepetierProtocol:
         """A command is half read, or a resend is awaited: silence now is an error."""
         return bool(self._command) or self.waiting_for_resend >= 0
 
-    def next_event(self) -> CommandReceived | CommandRejected | EmergencyStop | None:
+    def next_event(self) -> Event | None:
         position = 0
         try:
             while position < len(self._input) and self.reading:
@@ -116,7 +119,7 @@ class RepetierProtocol:
         finally:
             del self._input[:position]
 
-    def _take(self, byte: int):
+    def _take(self, byte: int) -> Event | None:
         self._command.append(byte)
         if len(self._command) == 1 and not self._comment:
             if self.waiting_for_resend >= 0 and self._last_was_binary:
@@ -134,7 +137,7 @@ class RepetierProtocol:
             return self._request_resend("command too long")
         return event
 
-    def _take_binary(self):
+    def _take_binary(self) -> Event | None:
         if len(self._command) in (2, 4, 5):
             self._binary_size = repetier.command_size(bytes(self._command))
         if self._binary_size is None or len(self._command) < self._binary_size:
@@ -149,7 +152,7 @@ class RepetierProtocol:
             self.act_line = command.n
         return self._check_and_push(repetier.to_gcode(command), command.n, command.m)
 
-    def _take_ascii(self, byte: int):
+    def _take_ascii(self, byte: int) -> Event | None:
         if byte in (0, 0x0A, 0x0D):
             raw = bytes(self._command[:-1]).decode("latin-1")
             self._command.clear()
@@ -163,7 +166,7 @@ class RepetierProtocol:
             self._command.pop()  # a comment is not kept: it never fills the buffer
         return None
 
-    def _ascii_line(self, raw: str):
+    def _ascii_line(self, raw: str) -> Event | None:
         """GCode::parseAscii: N is the first `N` anywhere, the checksum follows the first `*`."""
         n = None
         at = raw.find("N")
@@ -193,7 +196,7 @@ class RepetierProtocol:
         m_code = strtol(text[m_at + 1:]) & 0xFFFF if m_at >= 0 else None
         return self._check_and_push(text, n, m_code)
 
-    def _check_and_push(self, text: str, n: int | None, m_code: int | None):
+    def _check_and_push(self, text: str, n: int | None, m_code: int | None) -> Event | None:
         if m_code == 110:
             self.last_line = self.act_line
             self._say("ok")

@@ -55,7 +55,7 @@ SPI_READ_LOW_FUSE = 0x50
 SPI_READ_HIGH_FUSE = 0x58
 
 
-def checksum(data: bytes) -> int:
+def checksum(data: bytes | bytearray) -> int:
     return reduce(xor, data, 0)
 
 
@@ -134,6 +134,9 @@ class LeftBootloader:
     rest: bytes
 
 
+Event = MessageReceived | LeftBootloader
+
+
 # Events in.
 @dataclass(frozen=True)
 class Reply:
@@ -153,7 +156,7 @@ class Stk500Protocol:
             raise RuntimeError("the bootloader has handed the connection to the firmware")
         self._input += data
 
-    def next_event(self) -> MessageReceived | LeftBootloader | None:
+    def next_event(self) -> Event | None:
         """The next event the received bytes make, or None when more bytes are needed.
 
         Answer each message before asking for the next event: after LEAVE the following

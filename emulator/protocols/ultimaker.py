@@ -44,6 +44,9 @@ class PacketRejected:
     expected: int
 
 
+Event = CommandReceived | PacketRejected
+
+
 # Events into the protocol.
 @dataclass(frozen=True)
 class CommandDone:
@@ -100,7 +103,7 @@ class UltimakerProtocol:
     def receive_data(self, data: bytes) -> None:
         self._input += data
 
-    def next_event(self) -> CommandReceived | PacketRejected | None:
+    def next_event(self) -> Event | None:
         """The next event the received bytes make, or None when more bytes are needed."""
         position = 0
         try:
@@ -117,7 +120,7 @@ class UltimakerProtocol:
         finally:
             del self._input[:position]
 
-    def _step(self, byte: int) -> CommandReceived | PacketRejected | None:
+    def _step(self, byte: int) -> Event | None:
         state = self.state
         S = ReceiverState
         if state is S.WAIT_FOR_HEADER_BYTE:

@@ -1,15 +1,16 @@
 """Host side of Marlin's ASCII protocol: encode numbered lines, parse what the printer says.
 
-Sans-IO. What Marlin 2.1 says is listed in PROTOCOLS.md section 6; hosts that read it (OctoPrint,
-printcore) are in HOSTS.md. Every line the printer sends becomes exactly one event, whatever its
-bytes: damaged lines come out as data (or as a line error whose number is unknown), never as an
-exception.
+Sans-IO. What Marlin 2.1 says is listed in docs/protocols.md section 6; hosts that read it
+(OctoPrint, printcore) are in docs/hosts.md. Every line the printer sends becomes exactly one
+event, whatever its bytes: damaged lines come out as data (or as a line error whose number is
+unknown), never as an exception.
 """
 
 import re
 from collections.abc import Callable
 from dataclasses import dataclass
 from enum import Enum
+from typing import Generic, TypeVar, cast, overload
 
 from fake_marlin.host.codecs.lines import LineBuffer
 from fake_marlin.host.errors import CommandError
@@ -71,11 +72,6 @@ def encode_line(number: int, command: str) -> bytes:
 def encode_sync(command: str) -> bytes:
     """The host's own M110 line, after a line feed for the reason PROBE has one."""
     return b"\n" + encode_line(0, command)
-
-
-def encode_bare(command: str) -> bytes:
-    """A line without number or checksum: Marlin runs it unchecked, so only for people typing."""
-    return command.encode("ascii") + b"\n"
 
 
 # -- what the printer says ----------------------------------------------------------------
@@ -225,18 +221,29 @@ def is_garbled(raw: bytes) -> bool:
     return any(not (0x20 <= byte <= 0x7E or byte == 0x09) for byte in raw)
 
 
-class LineParser:
-    """Splits what arrives into lines and parses each; counts the lines that came damaged."""
+_EventT = TypeVar("_EventT")
+
+
+class LineParser(Generic[_EventT]):
+    """Splits what arrives into lines and parses each; counts the lines that came damaged.
+    Its events are what `parse` makes of a line: Marlin's (Event) unless told otherwise."""
+
+    @overload
+    def __init__(self: "LineParser[Event]") -> None: ...
+    @overload
+    def __init__(self, parse: Callable[[str], _EventT]) -> None: ...
 
     def __init__(self, parse: Callable[[str], object] = parse_line) -> None:
         self._lines = LineBuffer()
-        self._parse = parse  # Repetier's replies are lines too, with words of their own
+        # Repetier's replies are lines too, with words of their own. The overloads tie the
+        # parser's event type to `parse` (parse_line's Event when it is left out).
+        self._parse = cast("Callable[[str], _EventT]", parse)
         self.garbled = 0
 
     def receive_data(self, data: bytes) -> None:
         self._lines.receive_data(data)
 
-    def next_event(self) -> Event | None:
+    def next_event(self) -> _EventT | None:
         while (raw := self._lines.next_line()) is not None:
             raw = raw.rstrip(b"\r")
             if not raw.strip():

@@ -1,7 +1,7 @@
 """Host side of Repetier's protocol: encode numbered commands (binary where they fit), parse
 what the printer says. Sans-IO; every line becomes exactly one event, damaged or not.
 
-What Repetier-Firmware says (PROTOCOLS.md section 2): `ok <N>` when a command is queued,
+What Repetier-Firmware says (docs/protocols.md section 2): `ok <N>` when a command is queued,
 an empty line + `Resend:<n>` + `ok` for a command it wants again, `skip <N>` + `ok` for one
 it has already, `wait` when idle, `busy:processing` / `busy:heating` while it works.
 """
@@ -68,7 +68,7 @@ def parse_line(text: str) -> Event:
     return event
 
 
-class LineParser(marlin.LineParser):
+class LineParser(marlin.LineParser[Event]):
     """Marlin's line splitting (the empty line before a Resend skipped, damaged lines
     counted), with Repetier's words."""
 
