@@ -2,7 +2,7 @@
 
 import pytest
 
-from fake_marlin.emulator.faults.rules import FaultKind, FaultRule, Trigger
+from fake_marlin.emulator.faults.rules import FaultKind, FaultRule, Trigger, printer_failure
 from fake_marlin.emulator.printer import failures
 from fake_marlin.emulator.printer.model import Printer, PrinterConfig
 
@@ -19,15 +19,15 @@ ONCE = Trigger(nth=1)
 )
 def test_thermal_faults_kill_with_marlins_words(kind, heater, first):
     printer = Printer(PrinterConfig(extruders=2))
-    lines = failures.apply(printer, FaultRule(kind, ONCE, heater=heater), 0.0)
+    lines = failures.apply(printer, printer_failure(FaultRule(kind, ONCE, heater=heater)), 0.0)
     assert lines[:2] == (first, "Error:Printer halted. kill() called!") and printer.halted
-    assert failures.apply(printer, FaultRule(kind, ONCE), 1.0) == ()  # dead already
+    assert failures.apply(printer, printer_failure(FaultRule(kind, ONCE)), 1.0) == ()  # dead already
 
 
 def test_a_firmware_error_line_does_not_halt():
     printer = Printer()
     rule = FaultRule(FaultKind.FIRMWARE_ERROR, ONCE, text="Z probe out of range")
-    assert failures.apply(printer, rule, 0.0) == ("Error:Z probe out of range",)
+    assert failures.apply(printer, printer_failure(rule), 0.0) == ("Error:Z probe out of range",)
     assert not printer.halted
 
 
@@ -37,7 +37,8 @@ def test_pulling_the_sd_card_stops_its_print(tmp_path):
     list(printer.execute("M23 a.gco", 0.0))
     list(printer.execute("M24", 0.0))
     assert printer.sd.printing
-    assert failures.apply(printer, FaultRule(FaultKind.SD_REMOVED, ONCE), 0.0) == ("echo:SD card released",)
+    sd_removed = printer_failure(FaultRule(FaultKind.SD_REMOVED, ONCE))
+    assert failures.apply(printer, sd_removed, 0.0) == ("echo:SD card released",)
     assert not printer.sd.printing and not printer.sd.mounted
 
 
@@ -45,5 +46,5 @@ def test_a_planner_stall_delays_every_planned_move():
     printer = Printer()
     list(printer.execute("G1 X10 F600", 0.0))
     before = printer.planner.drained_at(0.0)
-    failures.apply(printer, FaultRule(FaultKind.PLANNER_STALL, ONCE, seconds=30.0), 0.5)
+    failures.apply(printer, printer_failure(FaultRule(FaultKind.PLANNER_STALL, ONCE, seconds=30.0)), 0.5)
     assert printer.planner.drained_at(0.5) == pytest.approx(before + 30.0)

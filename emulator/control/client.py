@@ -33,7 +33,10 @@ class ControlClient:
         return reply.get("result")
 
     def state(self) -> dict:
-        return self.request("state")
+        state = self.request("state")
+        if not isinstance(state, dict):
+            raise ControlRequestError(f"the printer's state is not an object: {state!r}")
+        return state
 
     def set_temperature(self, heater: str, temperature: float) -> None:
         self.request("set_temperature", heater=heater, temperature=temperature)

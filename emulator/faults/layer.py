@@ -89,8 +89,6 @@ def with_rate(config: FaultConfig, direction: str, field_name: str, rate: float)
 
 @dataclass
 class FaultStats:
-    bits_flipped: int = 0
-    bytes_dropped: int = 0
     lines_corrupted: int = 0
 
 
@@ -195,15 +193,13 @@ class FaultLayer:
         out = bytearray()
         for byte in data:
             if faults.drop_rate and self._random.random() < faults.drop_rate:
-                stats.bytes_dropped += 1
                 continue
             if byte_error_rate and self._random.random() < byte_error_rate:
                 byte ^= 1 << self._random.randrange(8)
-                stats.bits_flipped += 1
             out.append(byte)
         return bytes(out)
 
-    def _corrupt_lines(self, data: bytes, direction: Direction, rate: float, stats) -> bytes:
+    def _corrupt_lines(self, data: bytes, direction: Direction, rate: float, stats: FaultStats) -> bytes:
         """Each line that starts in `data` is damaged with chance `rate`, in one character."""
         out = bytearray(data)
         start = 0

@@ -11,6 +11,8 @@ import re
 from dataclasses import dataclass, field
 from enum import Enum
 
+from fake_marlin.emulator.printer.failures import Failure, FailureKind
+
 
 class FaultKind(Enum):
     # On the link, per unit.
@@ -84,6 +86,26 @@ class FaultRule:
     heater: str = "T0"  # T0.., or B for the bed
 
 
+# The printer faults the printer model suffers itself; reboot and queue-full are the server's.
+PRINTER_FAILURES = {
+    FaultKind.FIRMWARE_ERROR: FailureKind.FIRMWARE_ERROR,
+    FaultKind.THERMAL_RUNAWAY: FailureKind.THERMAL_RUNAWAY,
+    FaultKind.MINTEMP: FailureKind.MINTEMP,
+    FaultKind.MAXTEMP: FailureKind.MAXTEMP,
+    FaultKind.HEATER_FAULT: FailureKind.HEATER_FAULT,
+    FaultKind.PLANNER_STALL: FailureKind.PLANNER_STALL,
+    FaultKind.SD_REMOVED: FailureKind.SD_REMOVED,
+}
+
+
+def printer_failure(rule: FaultRule) -> Failure:
+    """The failure `rule` makes the printer model suffer (see printer.failures.apply)."""
+    kind = PRINTER_FAILURES.get(rule.kind)
+    if kind is None:
+        raise ValueError(f"{rule.kind.value} is not a printer fault the model handles")
+    return Failure(kind, heater=rule.heater, seconds=rule.seconds, text=rule.text)
+
+
 @dataclass
 class _RuleState:
     count: int = 0
@@ -118,9 +140,10 @@ class FaultPlan:
             if rule.kind not in LINK_KINDS and rule.trigger.at is None
         ]
 
-    def timed_rules(self) -> list[FaultRule]:
-        """Rules that fire at a moment, in time order."""
-        return sorted((r for r in self.rules if r.trigger.at is not None), key=lambda r: r.trigger.at)
+    def timed_rules(self) -> list[tuple[float, FaultRule]]:
+        """Rules that fire at a moment, in time order, each with its moment."""
+        timed = [(rule.trigger.at, rule) for rule in self.rules if rule.trigger.at is not None]
+        return sorted(timed, key=lambda entry: entry[0])
 
     def fires(self, index: int, text: str) -> bool:
         """Does rule `index` fire on this unit or command? Counts it either way."""

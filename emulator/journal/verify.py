@@ -105,7 +105,7 @@ def verify(job: Sequence[tuple[int, str]], journal: Sequence[str]) -> Verificati
     written = {number: line.strip() for number, line in enumerate(journal, 1)}
     ran = [(number, canonical(line)) for number, line in written.items() if line]
     runs = [(number, command) for number, command in ran if command in in_job]
-    found = [  # ((journal position, job index), problem)
+    found: list[tuple[tuple[float, int], Problem]] = [  # ((journal position, job index), problem)
         ((number, -1), Problem(Kind.EXTRA, written[number], None, number))
         for number, command in ran if command not in in_job
     ]
@@ -117,15 +117,16 @@ def verify(job: Sequence[tuple[int, str]], journal: Sequence[str]) -> Verificati
         ran_at[i] = runs[k][0]
         in_place[k] = True
     due_after = {}  # job index not run in place -> journal line after which it was due
-    waiting = defaultdict(deque)  # command -> those job indices, in job order
+    waiting: defaultdict[str, deque[int]] = defaultdict(deque)  # command -> those job indices, in job order
     last = 0
     for i, command in enumerate(texts):
-        if ran_at[i] is None:
+        at = ran_at[i]
+        if at is None:
             due_after[i] = last
             if not is_host_command(command):
                 waiting[command].append(i)
         else:
-            last = ran_at[i]
+            last = at
 
     again = []
     for k, (number, command) in enumerate(runs):
@@ -146,9 +147,9 @@ def verify(job: Sequence[tuple[int, str]], journal: Sequence[str]) -> Verificati
     # A repeat is charged to the run of the same command just before it. With none before, it
     # ran first, and the first run after it counts as the repeat instead.
     history = defaultdict(list)  # command -> sorted (journal line, job index) of its runs
-    for i, number in enumerate(ran_at):
-        if number is not None:
-            history[texts[i]].append((number, i))
+    for i, at in enumerate(ran_at):
+        if at is not None:
+            history[texts[i]].append((at, i))
     for done in history.values():
         done.sort()
     for number, command in again:
@@ -217,10 +218,10 @@ def _anchors(a: list[str], b: list[str]) -> list[tuple[int, int]]:
             tails[r] = c
             tail_js[r] = j
     run = []
-    c = tails[-1] if tails else None
-    while c is not None:
-        run.append(candidates[c])
-        c = back[c]
+    link = tails[-1] if tails else None
+    while link is not None:
+        run.append(candidates[link])
+        link = back[link]
     return run[::-1]
 
 

@@ -1,14 +1,14 @@
 """An in-memory link: the printer on one end, a host's byte stream on the other.
 
 Used to run the printer and a host in one process (tests on trio's autojump clock, scenarios),
-with the same interface as PtyLink.
+a Link (link.base) as PtyLink is.
 """
 
 import math
 
 import trio
 
-from fake_marlin.emulator.link.pty import HostOpened
+from fake_marlin.emulator.link.base import HostOpened
 from fake_marlin.host.errors import ConnectionLost  # the in-memory host end fails as a serial port does
 
 

@@ -13,9 +13,10 @@ import struct
 import sys
 import termios
 import tty
-from dataclasses import dataclass
 
 import trio
+
+from fake_marlin.emulator.link.base import HostOpened
 
 _TCGETS2 = 0x802C542A  # _IOR('T', 0x2A, struct termios2): reads custom rates such as 250000
 _TERMIOS2 = struct.Struct("IIIIB19sII")
@@ -24,11 +25,6 @@ _TIOCPKT_FLUSHREAD = 1
 # What the printer may keep unsent while nobody reads the port; past it the oldest bytes go,
 # as they would on a wire nobody listens to.
 _MAX_PENDING_OUTPUT = 1 << 20
-
-
-@dataclass(frozen=True)
-class HostOpened:
-    """A host (re)opened the port."""
 
 
 class PtyLink:
@@ -40,7 +36,6 @@ class PtyLink:
         self._pending = bytearray()
         self._output_ready = trio.Event()
         self._emptied = trio.Event()
-        self.dropped_bytes = 0
 
     def _open_pty(self) -> None:
         self._master, self._slave = os.openpty()
@@ -100,7 +95,6 @@ class PtyLink:
         overflow = len(self._pending) - _MAX_PENDING_OUTPUT
         if overflow > 0:
             del self._pending[:overflow]
-            self.dropped_bytes += overflow
         self._output_ready.set()
 
     def host_baud(self) -> int | None:

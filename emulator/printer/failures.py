@@ -4,12 +4,36 @@ The messages are Marlin 2.1's: `_temp_error()` prints the reason and the heater,
 halts the printer until it is reset.
 """
 
-from fake_marlin.emulator.faults.rules import FaultKind, FaultRule
+from dataclasses import dataclass
+from enum import Enum
+
+
+class FailureKind(Enum):
+    """What can go wrong inside the printer itself."""
+
+    THERMAL_RUNAWAY = "thermal-runaway"
+    MINTEMP = "mintemp"
+    MAXTEMP = "maxtemp"
+    FIRMWARE_ERROR = "firmware-error"  # an `Error:` line; the printer runs on
+    HEATER_FAULT = "heater-fault"  # the heater dies: it only ever cools
+    PLANNER_STALL = "planner-stall"  # the steppers stop for a while
+    SD_REMOVED = "sd-removed"
+
+
+@dataclass(frozen=True)
+class Failure:
+    """One failure, and what it needs to happen."""
+
+    kind: FailureKind
+    heater: str = "T0"  # T0.., or B for the bed: the thermal failures and heater-fault
+    seconds: float = 0.0  # planner-stall: how long
+    text: str = ""  # firmware-error: the message (default: `Something went wrong`)
+
 
 _THERMAL_REASONS = {
-    FaultKind.THERMAL_RUNAWAY: "Thermal Runaway",
-    FaultKind.MINTEMP: "MINTEMP triggered",
-    FaultKind.MAXTEMP: "MAXTEMP triggered",
+    FailureKind.THERMAL_RUNAWAY: "Thermal Runaway",
+    FailureKind.MINTEMP: "MINTEMP triggered",
+    FailureKind.MAXTEMP: "MAXTEMP triggered",
 }
 
 
@@ -32,22 +56,22 @@ def thermal_error(printer, reason: str, heater_name: str, now: float) -> tuple[s
     return printer.kill(first, now)
 
 
-def apply(printer, rule: FaultRule, now: float) -> tuple[str, ...]:
-    """Make the printer fail as `rule` says; returns the lines the firmware prints."""
+def apply(printer, failure: Failure, now: float) -> tuple[str, ...]:
+    """Make the printer fail as `failure` says; returns the lines the firmware prints."""
     if printer.halted:
         return ()
-    kind = rule.kind
+    kind = failure.kind
     if kind in _THERMAL_REASONS:
-        return thermal_error(printer, _THERMAL_REASONS[kind], rule.heater, now)
-    if kind is FaultKind.FIRMWARE_ERROR:
-        return (f"Error:{rule.text or 'Something went wrong'}",)
-    if kind is FaultKind.HEATER_FAULT:
-        heater(printer, rule.heater).break_down(now)
+        return thermal_error(printer, _THERMAL_REASONS[kind], failure.heater, now)
+    if kind is FailureKind.FIRMWARE_ERROR:
+        return (f"Error:{failure.text or 'Something went wrong'}",)
+    if kind is FailureKind.HEATER_FAULT:
+        heater(printer, failure.heater).break_down(now)
         return ()
-    if kind is FaultKind.PLANNER_STALL:
-        printer.planner.stall(now, rule.seconds)
+    if kind is FailureKind.PLANNER_STALL:
+        printer.planner.stall(now, failure.seconds)
         return ()
-    if kind is FaultKind.SD_REMOVED:
+    if kind is FailureKind.SD_REMOVED:
         printer.sd.reset()
         printer.sd.mounted = False
         return ("echo:SD card released",)

@@ -1,6 +1,7 @@
 """Parsing one line of G-code the way Marlin's GCodeParser reads it."""
 
 from dataclasses import dataclass, field
+from typing import overload
 
 from fake_marlin.wire.gcode import WORD, strip_comment
 
@@ -14,7 +15,15 @@ class Command:
     def has(self, letter: str) -> bool:
         return letter in self.params
 
+    @overload
+    def value(self, letter: str) -> float | None: ...
+    @overload
+    def value(self, letter: str, default: float) -> float: ...
+    @overload
+    def value(self, letter: str, default: float | None) -> float | None: ...
+
     def value(self, letter: str, default: float | None = None) -> float | None:
+        """The number after `letter`; `default` when the letter is absent or has none."""
         value = self.params.get(letter)
         return default if value is None else value
 

@@ -74,7 +74,6 @@ class PrinterConfig:
     steps_per_mm: tuple[float, float, float] = (80.0, 80.0, 400.0)
     homing_feedrate: tuple[float, float, float] = (50.0, 50.0, 10.0)  # mm/s
     default_feedrate: float = 1500.0  # mm/min until the first F word
-    bed_size: tuple[float, float] = (220.0, 220.0)
 
     def capability(self, name: str) -> bool:
         return dict(self.capabilities).get(name, False)

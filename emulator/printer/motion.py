@@ -22,7 +22,6 @@ class MotionState:
     retracted: bool = False
     feedrate_percent: float = 100.0  # M220
     flow_percent: float = 100.0  # M221
-    steppers_enabled: bool = False
 
 
 @dataclass
@@ -73,7 +72,6 @@ def plan_move(printer, target: list[float], speed: float, now: float):
         now = yield Sleep(printer.planner.next_change(now))
     if duration > 0:
         printer.planner.add(now, duration, start, tuple(target))
-        printer.motion.steppers_enabled = True
     printer.motion.position = list(target)
     return now
 
@@ -179,7 +177,6 @@ def home(printer, command: Command, now: float):
         seconds += travel / printer.config.homing_feedrate[index] + 0.5
         printer.motion.position[index] = 0.0
         printer.motion.homed.add(axis)
-    printer.motion.steppers_enabled = True
     yield Sleep(now + seconds)
     return reply()
 
@@ -229,13 +226,12 @@ def disable_steppers(printer, command: Command, now: float):
         printer.limits.inactivity_timeout = command.value("S", 0.0)
         return reply()
     yield from synchronize(printer, now)
-    printer.motion.steppers_enabled = False
     printer.motion.homed.clear()  # disabled steppers lose their position
     return reply()
 
 
 def enable_steppers(printer, command: Command, now: float):
-    printer.motion.steppers_enabled = True
+    """M17: the model keeps no state for stepper power, so it only acknowledges."""
     return reply()
 
 
@@ -246,8 +242,9 @@ def inactivity_timeout(printer, command: Command, now: float):
 
 def max_feedrates(printer, command: Command, now: float):
     for index, axis in enumerate(AXES):
-        if command.value(axis) is not None and command.value(axis) > 0:
-            printer.limits.max_feedrate[index] = command.value(axis)
+        value = command.value(axis)
+        if value is not None and value > 0:
+            printer.limits.max_feedrate[index] = value
     return reply()
 
 
@@ -271,16 +268,18 @@ def retract_settings(printer, command: Command, now: float):
 
 
 def feedrate_percent(printer, command: Command, now: float):
-    if command.value("S") is None:
+    percent = command.value("S")
+    if percent is None:
         return reply(f"FR:{printer.motion.feedrate_percent:.0f}%")
-    printer.motion.feedrate_percent = max(1.0, command.value("S"))
+    printer.motion.feedrate_percent = max(1.0, percent)
     return reply()
 
 
 def flow_percent(printer, command: Command, now: float):
-    if command.value("S") is None:
+    percent = command.value("S")
+    if percent is None:
         return reply(f"echo:E{printer.active_tool} Flow: {printer.motion.flow_percent:.0f}%")
-    printer.motion.flow_percent = max(1.0, command.value("S"))
+    printer.motion.flow_percent = max(1.0, percent)
     return reply()
 
 

@@ -71,7 +71,7 @@ class SdCard:
                 elif child.is_file():
                     found.append((short, long, child))
 
-        if self.mounted:
+        if self.mounted and self.root is not None:
             walk(self.root, "", "")
         return found
 
@@ -84,7 +84,9 @@ class SdCard:
 
     def path_on_card(self, name: str) -> Path | None:
         """Where a file called `name` goes on the card; None for a name like ../x that would
-        reach outside it."""
+        reach outside it, or with no card."""
+        if self.root is None:
+            return None
         root = self.root.resolve()
         path = (root / name.strip().lstrip("/")).resolve()
         return path if root in path.parents else None
@@ -104,6 +106,8 @@ class SdCard:
         return None
 
     def write_line(self, text: str) -> None:
+        if self.saving is None:
+            raise RuntimeError("no file is open for writing (M28)")
         with open(self.saving, "a", encoding="ascii", errors="replace", newline="") as target:
             target.write(text + "\r\n")
 

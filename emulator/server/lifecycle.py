@@ -1,18 +1,20 @@
 """The printer's life on a link: power on, boot, and reboot whenever a host opens the port."""
 
+from collections.abc import Iterable
 from dataclasses import dataclass
 
 import trio
 
-from fake_marlin.emulator.faults.rules import LINK_KINDS, FaultKind, FaultRule
+from fake_marlin.emulator.faults.rules import LINK_KINDS, FaultKind, FaultRule, printer_failure
 from fake_marlin.emulator.faults.layer import FaultConfig, FaultLayer, Segment
 from fake_marlin.emulator.journal.writer import Journal
+from fake_marlin.emulator.link.base import HostOpened, Link
 from fake_marlin.emulator.link.conditions import LinkConditions, Pipe
-from fake_marlin.emulator.link.pty import HostOpened, PtyLink
 from fake_marlin.emulator.printer import failures
 from fake_marlin.emulator.printer.model import Printer
+from fake_marlin.emulator.sessions.base import Session
 from fake_marlin.emulator.sessions.commstack import CommStackSession
-from fake_marlin.emulator.sessions.detect import Detected, DetectingSession
+from fake_marlin.emulator.sessions.detect import DetectingSession
 from fake_marlin.emulator.sessions.marlin import MarlinSession
 from fake_marlin.emulator.sessions.repetier import RepetierSession
 from fake_marlin.emulator.sessions.stk500 import Stk500Session
@@ -33,7 +35,7 @@ class ServerConfig:
 
 
 class PrinterServer:
-    def __init__(self, link: PtyLink, printer: Printer, journal: Journal, config: ServerConfig) -> None:
+    def __init__(self, link: Link, printer: Printer, journal: Journal, config: ServerConfig) -> None:
         self.link = link
         self.printer = printer
         self.journal = journal
@@ -44,8 +46,15 @@ class PrinterServer:
         self._to_host = Pipe(link.send, config.conditions, config.faults.seed + 1)
         self._restarts_in, self._restarts = trio.open_memory_channel[str](16)
         self._nursery: trio.Nursery | None = None
-        self._session = None
+        self._session: Session | DetectingSession | None = None
         self._session_scope = trio.CancelScope()
+
+    @property
+    def _tasks(self) -> trio.Nursery:
+        """Where the server starts its tasks, while it runs."""
+        if self._nursery is None:
+            raise RuntimeError("the printer server is not running")
+        return self._nursery
 
     async def run(self, task_status=trio.TASK_STATUS_IGNORED) -> None:
         """Power on, then serve; started (for nursery.start) once the power-on greeting is out,
@@ -65,7 +74,7 @@ class PrinterServer:
 
     async def _restart(self, reason: str) -> None:
         self._session_scope.cancel()
-        await self._nursery.start(self._boot, reason)
+        await self._tasks.start(self._boot, reason)
 
     async def _receive(self) -> None:
         while True:
@@ -93,14 +102,16 @@ class PrinterServer:
             self._session = session
             await session.run()
 
-    def _make_session(self, protocol: str | Detected, reason: str):
-        protocol = protocol.value if isinstance(protocol, Detected) else protocol
+    def _make_session(self, protocol: str, reason: str) -> Session | DetectingSession:
         if protocol == "auto":
-            return DetectingSession(lambda detected: self._make_session(detected, reason))
+            return DetectingSession(lambda detected: self._protocol_session(detected.value, reason))
+        return self._protocol_session(protocol, reason)
+
+    def _protocol_session(self, protocol: str, reason: str) -> Session:
         if protocol == "stk500":
             # LEAVE starts the firmware, whose protocol the bytes after it choose.
             return Stk500Session(self._send, lambda: DetectingSession(
-                lambda detected: self._make_session(detected, reason), bootloader=False
+                lambda detected: self._protocol_session(detected.value, reason), bootloader=False
             ))
         if protocol == "marlin":
             return MarlinSession(
@@ -127,7 +138,7 @@ class PrinterServer:
         for segment in segments:
             pipe.put(segment.data, segment.pause)
             if segment.hang_up is not None:
-                self._nursery.start_soon(self._hang_up, segment.hang_up)
+                self._tasks.start_soon(self._hang_up, segment.hang_up)
 
     async def _hang_up(self, seconds: float) -> None:
         """The line is dead for `seconds`; the printer itself runs on, talking to nobody."""
@@ -167,9 +178,9 @@ class PrinterServer:
             self._restarts_in.send_nowait(" Watchdog Reset")
         elif rule.kind is FaultKind.QUEUE_FULL:
             if session is not None:
-                session.block_queue(rule.seconds, self._nursery)
+                session.block_queue(rule.seconds, self._tasks)
         else:
-            lines = failures.apply(self.printer, rule, trio.current_time())
+            lines = failures.apply(self.printer, printer_failure(rule), trio.current_time())
             if session is not None:
                 session.announce(lines)
 
@@ -177,7 +188,7 @@ class PrinterServer:
         """A printer fault now, from outside (the control channel)."""
         self._printer_fault(rule)
 
-    def announce(self, lines) -> None:
+    def announce(self, lines: Iterable[str]) -> None:
         session = self._active_session()
         if session is not None:
             session.announce(lines)
@@ -195,13 +206,13 @@ class PrinterServer:
             return "commstack"
         return None
 
-    def _active_session(self):
+    def _active_session(self) -> Session | None:
         session = self._session
         return session.active if isinstance(session, DetectingSession) else session
 
     async def _fire_timed_faults(self, powered_on: float) -> None:
-        for rule in self.faults.plan.timed_rules():
-            await trio.sleep_until(powered_on + rule.trigger.at)
+        for at, rule in self.faults.plan.timed_rules():
+            await trio.sleep_until(powered_on + at)
             if rule.kind not in LINK_KINDS:
                 self._printer_fault(rule)
             elif rule.kind is FaultKind.GARBAGE:
@@ -214,4 +225,4 @@ class PrinterServer:
                 pipe = self._to_printer if rule.direction == "to-printer" else self._to_host
                 pipe.put(b"", rule.seconds)
             elif rule.kind is FaultKind.DISCONNECT:
-                self._nursery.start_soon(self._hang_up, rule.seconds)
+                self._tasks.start_soon(self._hang_up, rule.seconds)

@@ -3,8 +3,9 @@
 Tasks answered (Printrhub's mk20 Application.cpp, ReceiveSDCardFile and DownloadFileController):
 - Ping: the MK20's build number (int32); it also pings the host every 5 s until answered.
 - GetSystemInfo: the 128-byte SystemInfo struct the ESP keeps.
-- FileOpenForWrite (JSON `localFilePath`, `fileSize`, `compression` 1 = none, 2 = RLE16, or
-  a bare path), FileSetSize (u32), FileSaveData (data), FileClose: a file on the SD card.
+- FileOpenForWrite (JSON `localFilePath`, `compression` 1 = none, 2 = RLE16, or a bare path),
+  FileSetSize, FileSaveData (data), FileClose: a file on the SD card. The announced size (JSON
+  `fileSize`, FileSetSize's u32) is accepted and not needed: the file is the data stored.
   The ResponseSuccess of FileSaveData and FileClose carries the file's length so far (u32),
   which the MK20 does not send: a host that ignores it loses nothing, and ours learns from it
   whether a chunk whose answer was lost was stored (an empty FileSaveData asks).
@@ -17,7 +18,7 @@ Anything else is answered with an empty ResponseSuccess, as the firmware answers
 import json
 import math
 import struct
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -46,7 +47,6 @@ COMPRESSION_RLE16 = 2
 class _Upload:
     path: Path
     compression: int
-    size_announced: int | None
     written: int = 0
 
 
@@ -73,7 +73,7 @@ class CommStackSession:
     def boot(self) -> None:
         pass  # the MK20 speaks first only with its pings
 
-    def announce(self, lines) -> None:
+    def announce(self, lines: Iterable[str]) -> None:
         pass  # CommStack has no channel for the printer's messages
 
     def block_queue(self, seconds: float, nursery: trio.Nursery) -> None:
@@ -143,9 +143,7 @@ class CommStackSession:
         elif task == Task.FILE_OPEN_FOR_WRITE:
             self._reply(task, self._open_for_write(data))
         elif task == Task.FILE_SET_SIZE:
-            if self._upload is not None and len(data) >= 4:
-                self._upload.size_announced = struct.unpack_from("<I", data)[0]
-            self._reply(task)
+            self._reply(task)  # the file ends where its data does: the size is not needed
         elif task == Task.FILE_SAVE_DATA:
             stored = self._save(data)
             length = b"" if self._upload is None else struct.pack("<I", self._upload.written)
@@ -169,7 +167,7 @@ class CommStackSession:
 
     def _open_for_write(self, data: bytes) -> bool:
         text = data.split(b"\0", 1)[0].decode("latin-1").strip()
-        compression, size = 1, None
+        compression = 1
         try:
             fields = json.loads(text)
         except ValueError:
@@ -179,8 +177,6 @@ class CommStackSession:
         name = fields.get("localFilePath")
         if isinstance(fields.get("compression"), int):
             compression = fields["compression"]
-        if isinstance(fields.get("fileSize"), int):
-            size = fields["fileSize"]
         path = self._card_path(name)
         if path is None:
             return False
@@ -193,7 +189,7 @@ class CommStackSession:
             path.write_bytes(b"")
         except OSError:
             return False
-        self._upload = _Upload(path, compression, size)
+        self._upload = _Upload(path, compression)
         return True
 
     def _card_path(self, name) -> Path | None:
@@ -244,7 +240,7 @@ class CommStackSession:
             path = self._card_path(name)
         else:
             path = self._last_stored
-        if path is None or not path.is_file() or self.printer.halted:
+        if path is None or sd.root is None or not path.is_file() or self.printer.halted:
             return False
         if sd.printing and sd.selected is not None and sd.selected.path == path:
             return True  # asked again (its answer was lost): it is printing already

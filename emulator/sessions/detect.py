@@ -8,6 +8,8 @@ import trio
 
 from fake_marlin.emulator.protocols.repetier import MAX_CMD_SIZE
 from fake_marlin.emulator.protocols.stk500 import MESSAGE_START
+from fake_marlin.emulator.sessions.base import Session
+from fake_marlin.emulator.sessions.stk500 import Stk500Session
 from fake_marlin.wire import repetier
 from fake_marlin.wire.commstack import starts_with_header
 
@@ -72,18 +74,19 @@ class DetectingSession:
     once it has handed over, 0x1B is noise to the firmware like any other control byte.
     """
 
-    def __init__(self, make_session: Callable[[Detected], object], bootloader: bool = True) -> None:
+    def __init__(self, make_session: Callable[[Detected], Session], bootloader: bool = True) -> None:
         self._make_session = make_session
         self._bootloader = bootloader
-        self._session = None
+        self._session: Session | None = None
         self._held = b""  # the start of what may be a Repetier command or a CommStack frame
         self._fed = trio.Event()
 
     @property
-    def active(self):
+    def active(self) -> Session | None:
         """The session that took over, once the protocol is known (the firmware's, past a
         bootloader)."""
-        return getattr(self._session, "active", self._session)
+        session = self._session
+        return session.active if isinstance(session, Stk500Session) else session
 
     def boot(self) -> None:
         pass
@@ -106,8 +109,8 @@ class DetectingSession:
                     if not confirmed:
                         protocol = None
                 if protocol is not None:
-                    self._session = self._make_session(protocol)
-                    self._session.boot()
+                    session = self._session = self._make_session(protocol)
+                    session.boot()
                     data = data[index:]
                     break
                 index += 1

@@ -2,7 +2,7 @@
 
 import math
 import re
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 
 import trio
 
@@ -60,7 +60,7 @@ class MarlinSession:
     def _say(self, text: str) -> None:
         self._send(self.protocol.send(Output(text)))
 
-    def announce(self, lines) -> None:
+    def announce(self, lines: Iterable[str]) -> None:
         """Lines the firmware prints on its own (a fault, a kill)."""
         for line in lines:
             self._say(line)
@@ -149,8 +149,8 @@ class MarlinSession:
 
     def _protocol_effects(self, command: Command) -> None:
         """M110, M113 and M999 act on the protocol, not on the printer."""
-        if command.code == "M110" and command.value("N") is not None:
-            self.protocol.last_n = int(command.value("N"))
+        if command.code == "M110" and (number := command.value("N")) is not None:
+            self.protocol.last_n = int(number)
         elif command.code == "M113" and command.has("S"):
             self.busy_interval = max(0.0, min(60.0, command.value("S", 0.0)))
         elif command.code == "M113":

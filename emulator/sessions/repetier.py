@@ -7,7 +7,7 @@ their own (the `ok` went out when the command was queued), M114, `TargetExtr0:` 
 """
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 
 import trio
 
@@ -87,7 +87,7 @@ class RepetierSession:
         self._last_data = trio.current_time()
         self.announce(["start", f"Info:{self.reset_reason}", "Free RAM:3412", "SelectExtruder:0"])
 
-    def announce(self, lines) -> None:
+    def announce(self, lines: Iterable[str]) -> None:
         for line in lines:
             self._send(self.protocol.send(Output(line)))
 

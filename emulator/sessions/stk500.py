@@ -5,11 +5,12 @@ LEAVE_PROGMODE_ISP and then talk to the firmware on the same connection, so the 
 hands over to the firmware session rather than ending the connection.
 """
 
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 
 import trio
 
 from fake_marlin.emulator.protocols.stk500 import LeftBootloader, MessageReceived, Reply, Stk500Protocol, answer
+from fake_marlin.emulator.sessions.base import HandsOver, Session
 
 # stk500boot.c's recchar_timeout() polls the UART F_CPU / 2 times for each next byte, then jumps
 # to the firmware: some seconds on a 16 MHz board (the exact time is its compiled loop's).
@@ -20,22 +21,22 @@ class Stk500Session:
     def __init__(
         self,
         send: Callable[[bytes], None],
-        start_firmware: Callable[[], object],
+        start_firmware: Callable[[], HandsOver],
         byte_timeout: float = BYTE_TIMEOUT,
     ) -> None:
         self._send = send
         self._start_firmware = start_firmware
         self.byte_timeout = byte_timeout
         self.protocol = Stk500Protocol()
-        self.firmware = None  # the session the bootloader handed over to
+        self.firmware: HandsOver | None = None  # the session the bootloader handed over to
         self._heard = trio.Event()
 
     @property
-    def active(self):
+    def active(self) -> Session | None:
         """The session that speaks for the printer: this one, then the firmware's."""
         if self.firmware is None:
             return self
-        return getattr(self.firmware, "active", self.firmware)
+        return self.firmware.active
 
     def boot(self) -> None:
         pass  # the bootloader says nothing until it is spoken to
@@ -53,11 +54,11 @@ class Stk500Session:
                 self._jump_to_firmware(event.rest)
 
     def _jump_to_firmware(self, rest: bytes) -> None:
-        self.firmware = self._start_firmware()
-        self.firmware.boot()
+        firmware = self.firmware = self._start_firmware()
+        firmware.boot()
         self._heard.set()
         if rest:
-            self.firmware.feed(rest)
+            firmware.feed(rest)
 
     async def run(self) -> None:
         while self.firmware is None:
@@ -70,7 +71,7 @@ class Stk500Session:
                 self._jump_to_firmware(b"")
         await self.firmware.run()
 
-    def announce(self, lines) -> None:
+    def announce(self, lines: Iterable[str]) -> None:
         pass  # faults reach a firmware that is not running yet: nothing prints them
 
     def block_queue(self, seconds: float, nursery: trio.Nursery) -> None:

@@ -1,7 +1,7 @@
 """One boot of a printer speaking Ultimaker's binary protocol."""
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 
 import trio
 
@@ -56,7 +56,7 @@ class UltimakerSession:
             nursery.start_soon(self._execute_commands)
             nursery.start_soon(self._report_room)
 
-    def announce(self, lines) -> None:
+    def announce(self, lines: Iterable[str]) -> None:
         """Lines the firmware prints on its own: errors out of band as `Error:`, the rest as LOG."""
         for line in lines:
             if line.startswith("Error:"):
