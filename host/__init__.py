@@ -1,7 +1,12 @@
-"""fake-marlin's host client: stream G-code to any printer on a serial port."""
+"""fake-marlin's host client: stream G-code to any printer on a serial port.
 
-from fake_marlin.host.connect import PROTOCOLS, open_printer
-from fake_marlin.host.shell import PrintSummary
+    async with open_printer("/dev/ttyACM0", protocol="marlin") as printer:
+        print(await printer.send("M105"))
+        summary = await printer.print_file("part.gcode")
+"""
+
+from fake_marlin.host.connect import DEFAULT_BAUDRATE, PROTOCOLS, connect, load_job, open_printer
+from fake_marlin.host.cores.queue import Ticket
 from fake_marlin.host.errors import (
     CommandError,
     ConnectionLost,
@@ -10,17 +15,46 @@ from fake_marlin.host.errors import (
     PrinterHalted,
     PrinterNotResponding,
     PrinterReset,
+    RemoteError,
+    UploadFailed,
+    UsageError,
+)
+from fake_marlin.host.shell import (
+    ByteStream,
+    Client,
+    ClientOptions,
+    LineCallback,
+    PrinterLine,
+    PrintSummary,
+    ProgressCallback,
+    Stats,
+    StreamingClient,
 )
 
 __all__ = [
+    "DEFAULT_BAUDRATE",
+    "PROTOCOLS",
+    "ByteStream",
+    "Client",
+    "ClientOptions",
     "CommandError",
     "ConnectionLost",
     "HostError",
-    "PROTOCOLS",
+    "LineCallback",
     "PortError",
     "PrintSummary",
     "PrinterHalted",
+    "PrinterLine",
     "PrinterNotResponding",
     "PrinterReset",
+    "ProgressCallback",
+    "RemoteError",
+    "Stats",
+    "StreamingClient",
+    "Ticket",
+    "UploadFailed",
+    "UsageError",
+    "connect",
+    "load_job",
     "open_printer",
 ]

@@ -1,6 +1,6 @@
 """Opening a printer: the client for a protocol, over a byte stream or a serial port."""
 
-from collections.abc import AsyncIterator, Callable
+from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
 
 import trio
@@ -12,20 +12,20 @@ from fake_marlin.host.clients.ultimaker import UltimakerClient
 from fake_marlin.host.errors import CommandError
 from fake_marlin.host.gcode_file import JobCommand, checked_job
 from fake_marlin.host.serial_port import SerialPort
-from fake_marlin.host.shell import ByteStream, ClientOptions, _Client, sole_exception
+from fake_marlin.host.shell import ByteStream, Client, ClientOptions, LineCallback, sole_exception
 
 DEFAULT_BAUDRATE = 250000
-PROTOCOLS = ("ultimaker", "marlin", "repetier", "commstack")
+_CLIENTS: dict[str, type[Client]] = {
+    client.protocol: client
+    for client in (UltimakerClient, MarlinClient, RepetierClient, CommStackClient)
+}
+PROTOCOLS = tuple(_CLIENTS)
 
 
-def _client_class(protocol: str) -> type[_Client]:
-    clients = {
-        client.protocol: client
-        for client in (UltimakerClient, MarlinClient, RepetierClient, CommStackClient)
-    }
-    if protocol not in clients:
+def _client_class(protocol: str) -> type[Client]:
+    if protocol not in _CLIENTS:
         raise CommandError(f"unknown protocol {protocol!r}; choose from {', '.join(PROTOCOLS)}")
-    return clients[protocol]
+    return _CLIENTS[protocol]
 
 
 def load_job(path: str, protocol: str = "ultimaker") -> list[JobCommand]:
@@ -38,8 +38,8 @@ async def connect(
     stream: ByteStream,
     protocol: str = "ultimaker",
     options: ClientOptions = ClientOptions(),
-    on_line: Callable | None = None,
-) -> AsyncIterator[_Client]:
+    on_line: LineCallback | None = None,
+) -> AsyncIterator[Client]:
     """A client speaking `protocol` over an open byte stream."""
     client = _client_class(protocol)(stream, options, on_line)
     try:
@@ -62,8 +62,8 @@ async def open_printer(
     protocol: str = "ultimaker",
     baudrate: int = DEFAULT_BAUDRATE,
     options: ClientOptions = ClientOptions(),
-    on_line: Callable | None = None,
-) -> AsyncIterator[_Client]:
+    on_line: LineCallback | None = None,
+) -> AsyncIterator[Client]:
     """Open a serial port (the emulator's pty or a real printer) and talk to the printer on it."""
     _client_class(protocol)
     serial_port = SerialPort.open(port, baudrate)

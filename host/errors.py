@@ -35,3 +35,7 @@ class UsageError(HostError):
 
 class CommandError(UsageError):
     """A command cannot be sent as given (too long, not ASCII)."""
+
+
+class UploadFailed(RemoteError):
+    """A file could not be stored on the printer intact, or the printer would not print it."""

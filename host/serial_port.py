@@ -32,11 +32,11 @@ class SerialPort:
             raise PortError(f"cannot open {path}: {error}") from None
         return cls(device, path)
 
-    async def receive_some(self, max_bytes: int = 4096) -> bytes:
+    async def receive_some(self, max_bytes: int | None = 4096) -> bytes:
         while True:
             await trio.lowlevel.wait_readable(self._fd)
             try:
-                data = os.read(self._fd, max_bytes)
+                data = os.read(self._fd, max_bytes or 4096)
             except BlockingIOError:
                 continue
             except OSError as error:

@@ -1,26 +1,66 @@
 """The trio shell every host client shares: one reader task, one sender task behind a send lock,
 and a sans-IO core. Each protocol brings its parser and its core (fake_marlin.host.cores) in a thin
-client (fake_marlin.host.clients)."""
+client (fake_marlin.host.clients).
+
+`Client` is what `open_printer` and `connect` give: `send` a command, `print_commands` or
+`print_file` a job, read `stats`. `StreamingClient` adds `submit` and `wait_idle` for the protocols
+that stream commands through a `CommandQueue` (Ultimaker, Marlin, Repetier); CommStack stores a
+job on the card and prints it instead.
+"""
 
 import math
-from collections.abc import Callable, Iterable
+from abc import ABC, abstractmethod
+from collections.abc import Awaitable, Callable, Iterable
 from dataclasses import asdict, dataclass
-from typing import Protocol
+from typing import ClassVar, Protocol
 
 import trio
 
-from fake_marlin.host.codecs.ultimaker import check_command
+from fake_marlin.host.codecs import marlin, ultimaker
 from fake_marlin.host.cores.queue import Ticket
 from fake_marlin.host.errors import HostError
 from fake_marlin.host.gcode_file import checked_job
 
+# A line the printer printed that is not a command's response data (marlin.Line serves Repetier).
+PrinterLine = ultimaker.Line | marlin.Line
+LineCallback = Callable[[PrinterLine], None]
+ProgressCallback = Callable[[int], None]
+
+
 class ByteStream(Protocol):
-    async def receive_some(self, max_bytes: int = ...) -> bytes: ...
+    async def receive_some(self, max_bytes: int | None = ...) -> bytes: ...
     async def send_all(self, data: bytes) -> None: ...
+
+
+class Stats(Protocol):
+    """What every core counts (each core's stats dataclass has these and may have more)."""
+
+    packets_sent: int
+    resends: int
+    timeouts: int
+    rejects: int
+    unconfirmed: int
+
+
+class QueueCore(Protocol):
+    """A core that streams commands: a CommandQueue with a window (fake_marlin.host.cores)."""
+
+    @property
+    def stats(self) -> Stats: ...
+    @property
+    def backlog(self) -> int: ...
+    @property
+    def window(self) -> int: ...
+    @property
+    def idle(self) -> bool: ...
+    def submit(self, text: str) -> Ticket: ...
+    def next_deadline(self) -> float | None: ...
 
 
 @dataclass(frozen=True)
 class PrintSummary:
+    """What printing a job took."""
+
     commands: int
     packets_sent: int
     resends: int
@@ -30,7 +70,7 @@ class PrintSummary:
     unconfirmed: int
     elapsed: float
 
-    def as_dict(self) -> dict:
+    def as_dict(self) -> dict[str, int | float]:
         return asdict(self)
 
 
@@ -44,29 +84,44 @@ class ClientOptions:
     settle: float = 0.5  # how long to wait for the printer's boot message before sending
 
 
-class _Client:
-    """The shell. A subclass sets `_core` (submit, backlog, window, idle, next_deadline, stats)
-    and implements `_feed` (bytes from the printer) and `_poll` (bytes to write now)."""
+class Client(ABC):
+    """A printer on a byte stream. A protocol's client implements `_feed` (bytes from the
+    printer), `_poll` (bytes to write now) and `_next_deadline` (when to poll unasked)."""
 
-    check_command = staticmethod(check_command)
+    protocol: ClassVar[str]
+    # Whether the sender waits (up to options.settle) for the printer's greeting first.
+    waits_for_greeting: ClassVar[bool] = True
 
-    def __init__(self, stream: ByteStream, options: ClientOptions, on_line: Callable | None) -> None:
+    @staticmethod
+    def check_command(command: str) -> object:
+        """Raise CommandError if `command` cannot be sent in this protocol."""
+        return ultimaker.check_command(command)
+
+    def __init__(self, stream: ByteStream, options: ClientOptions, on_line: LineCallback | None) -> None:
         self._stream = stream
         self.options = options
-        self._on_line = on_line or (lambda line: None)
+        self._on_line: LineCallback = on_line or (lambda line: None)
         self._send_lock = trio.Lock()
-        self._changed = trio.Event()  # a command completed or left the backlog
+        self._changed = trio.Event()  # something the library API waits on may have happened
         self._sender_wake = trio.Event()
         self._printer_seen = trio.Event()
-        self._on_complete: Callable[[int], None] = lambda count: None
-        self.room: int | None = None
+        self.room: int | None = None  # the printer's planner room, where it says
         self.corrupt_frames = 0
         self.completed = 0
         self.failure: HostError | None = None
 
     @property
-    def stats(self):
-        return self._core.stats
+    @abstractmethod
+    def stats(self) -> Stats: ...
+
+    @abstractmethod
+    def _feed(self, data: bytes) -> None: ...
+
+    @abstractmethod
+    def _poll(self, now: float) -> list[bytes]: ...
+
+    @abstractmethod
+    def _next_deadline(self) -> float | None: ...
 
     # -- the background tasks -----------------------------------------------------------
     async def run(self, cancel_scope: trio.CancelScope) -> None:
@@ -74,7 +129,7 @@ class _Client:
             nursery.start_soon(self._guard, self._read_loop, cancel_scope)
             nursery.start_soon(self._guard, self._send_loop, cancel_scope)
 
-    async def _guard(self, loop, cancel_scope: trio.CancelScope) -> None:
+    async def _guard(self, loop: Callable[[], Awaitable[None]], cancel_scope: trio.CancelScope) -> None:
         try:
             await loop()
         except HostError as error:
@@ -85,11 +140,69 @@ class _Client:
         while True:
             self._feed(await self._stream.receive_some(4096))
 
-    def _feed(self, data: bytes) -> None:
-        raise NotImplementedError
+    def _notify(self) -> None:
+        self._changed.set()
+        self._changed = trio.Event()
 
-    def _poll(self, now: float) -> list[bytes]:
-        raise NotImplementedError
+    async def _send_loop(self) -> None:
+        if self.waits_for_greeting:
+            with trio.move_on_after(self.options.settle):
+                await self._printer_seen.wait()
+        while True:
+            wake = self._sender_wake = trio.Event()
+            async with self._send_lock:
+                for data in self._poll(trio.current_time()):
+                    await self._stream.send_all(data)
+            # poll() may have moved commands out of the backlog, or completed some.
+            self._notify()
+            deadline = self._next_deadline()
+            with trio.move_on_at(math.inf if deadline is None else deadline):
+                await wake.wait()
+
+    async def _wait_until(self, condition: Callable[[], bool]) -> None:
+        while not condition():
+            await self._changed.wait()
+
+    def _summary(self, before: dict[str, int], corrupt_before: int, commands: int, start: float) -> PrintSummary:
+        after = asdict(self.stats)  # type: ignore[call-overload]  # each core's stats is a dataclass
+        return PrintSummary(
+            commands=commands,
+            **{key: after[key] - before[key] for key in ("packets_sent", "resends", "timeouts", "rejects", "unconfirmed")},
+            corrupt_frames=self.corrupt_frames - corrupt_before,
+            elapsed=trio.current_time() - start,
+        )
+
+    # -- the library API ----------------------------------------------------------------
+    @abstractmethod
+    async def send(self, command: str) -> tuple[str, ...]:
+        """Send one command; returns its response data once the printer has executed it."""
+
+    @abstractmethod
+    async def print_commands(
+        self, commands: Iterable[str], progress: ProgressCallback | None = None
+    ) -> PrintSummary:
+        """Print these commands; returns once the printer has them all, each exactly once."""
+
+    async def print_file(self, path: str, progress: ProgressCallback | None = None) -> PrintSummary:
+        """Print a G-code file (comments and blank lines stripped, every line checked first)."""
+        return await self.print_commands([c.text for c in checked_job(path, self.check_command)], progress)
+
+
+class StreamingClient(Client):
+    """A client whose core is a CommandQueue: commands are submitted, streamed and completed."""
+
+    _core: QueueCore
+
+    def __init__(self, stream: ByteStream, options: ClientOptions, on_line: LineCallback | None) -> None:
+        super().__init__(stream, options, on_line)
+        self._on_complete: ProgressCallback = lambda count: None
+
+    @property
+    def stats(self) -> Stats:
+        return self._core.stats
+
+    def _next_deadline(self) -> float | None:
+        return self._core.next_deadline()
 
     def _completed(self, tickets: list[Ticket]) -> None:
         if tickets:
@@ -98,29 +211,6 @@ class _Client:
             self._notify()
             self._sender_wake.set()
 
-    def _notify(self) -> None:
-        self._changed.set()
-        self._changed = trio.Event()
-
-    async def _send_loop(self) -> None:
-        with trio.move_on_after(self.options.settle):
-            await self._printer_seen.wait()
-        while True:
-            wake = self._sender_wake = trio.Event()
-            async with self._send_lock:
-                for data in self._poll(trio.current_time()):
-                    await self._stream.send_all(data)
-            # poll() may have moved commands out of the backlog, or completed some.
-            self._notify()
-            deadline = self._core.next_deadline()
-            with trio.move_on_at(math.inf if deadline is None else deadline):
-                await wake.wait()
-
-    async def _wait_until(self, condition: Callable[[], bool]) -> None:
-        while not condition():
-            await self._changed.wait()
-
-    # -- the library API ----------------------------------------------------------------
     async def submit(self, command: str) -> Ticket:
         """Queue a command, waiting while the backlog is a window long (flow control)."""
         self.check_command(command)
@@ -130,20 +220,19 @@ class _Client:
         return ticket
 
     async def send(self, command: str) -> tuple[str, ...]:
-        """Send one command; returns its response data once the printer has executed it."""
         ticket = await self.submit(command)
         await self._wait_until(lambda: ticket.done)
         return ticket.response
 
     async def wait_idle(self) -> None:
+        """Until every command submitted has completed."""
         await self._wait_until(lambda: self._core.idle)
 
     async def print_commands(
-        self, commands: Iterable[str], progress: Callable[[int], None] | None = None
+        self, commands: Iterable[str], progress: ProgressCallback | None = None
     ) -> PrintSummary:
-        """Stream commands; returns once every one has been acknowledged."""
         start = trio.current_time()
-        before = asdict(self.stats)
+        before = asdict(self.stats)  # type: ignore[call-overload]  # each core's stats is a dataclass
         corrupt_before, completed_before = self.corrupt_frames, self.completed
         if progress is not None:
             self._on_complete = lambda count: progress(self.completed - completed_before)
@@ -153,20 +242,7 @@ class _Client:
             await self.wait_idle()
         finally:
             self._on_complete = lambda count: None
-        after = asdict(self.stats)
-        return PrintSummary(
-            commands=self.completed - completed_before,
-            packets_sent=after["packets_sent"] - before["packets_sent"],
-            resends=after["resends"] - before["resends"],
-            timeouts=after["timeouts"] - before["timeouts"],
-            rejects=after["rejects"] - before["rejects"],
-            corrupt_frames=self.corrupt_frames - corrupt_before,
-            unconfirmed=after["unconfirmed"] - before["unconfirmed"],
-            elapsed=trio.current_time() - start,
-        )
-
-    async def print_file(self, path: str, progress: Callable[[int], None] | None = None) -> PrintSummary:
-        return await self.print_commands([c.text for c in checked_job(path, self.check_command)], progress)
+        return self._summary(before, corrupt_before, self.completed - completed_before, start)
 
 
 def sole_exception(error: BaseException) -> BaseException:

@@ -1,16 +1,15 @@
 """The trio client for Marlin's ASCII protocol: the shared shell around the line sender
 (fake_marlin.host.cores.marlin)."""
 
-from collections.abc import Callable
 
 import trio
 
 from fake_marlin.host.codecs import marlin
 from fake_marlin.host.cores.marlin import MarlinSender
-from fake_marlin.host.shell import ByteStream, ClientOptions, _Client
+from fake_marlin.host.shell import ByteStream, ClientOptions, LineCallback, StreamingClient
 
 
-class MarlinClient(_Client):
+class MarlinClient(StreamingClient):
     """Marlin's ASCII protocol: numbered lines, one in flight (see fake_marlin.host.cores.marlin)."""
 
     protocol = "marlin"
@@ -20,7 +19,7 @@ class MarlinClient(_Client):
         self,
         stream: ByteStream,
         options: ClientOptions = ClientOptions(),
-        on_line: Callable[[marlin.Line], None] | None = None,
+        on_line: LineCallback | None = None,
     ) -> None:
         super().__init__(stream, options, on_line)
         self._parser = marlin.LineParser()

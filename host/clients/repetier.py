@@ -1,16 +1,16 @@
 """The trio client for Repetier-Firmware: the shared shell (fake_marlin.host.shell) around
 the Repetier sender (fake_marlin.host.cores.repetier)."""
 
-from collections.abc import Callable
 
 import trio
 
-from fake_marlin.host.shell import ByteStream, ClientOptions, _Client
+from fake_marlin.host.shell import ByteStream, ClientOptions, LineCallback, StreamingClient
 from fake_marlin.host.codecs import repetier
+from fake_marlin.host.cores.queue import Ticket
 from fake_marlin.host.cores.repetier import RepetierSender
 
 
-class RepetierClient(_Client):
+class RepetierClient(StreamingClient):
     """Repetier's protocol: binary commands where they fit, `ok <N>` when queued."""
 
     protocol = "repetier"
@@ -20,7 +20,7 @@ class RepetierClient(_Client):
         self,
         stream: ByteStream,
         options: ClientOptions = ClientOptions(),
-        on_line: Callable[[repetier.Line], None] | None = None,
+        on_line: LineCallback | None = None,
     ) -> None:
         super().__init__(stream, options, on_line)
         self._parser = repetier.LineParser()
@@ -29,7 +29,7 @@ class RepetierClient(_Client):
             long_timeout=options.long_timeout,
             max_transmissions=options.max_transmissions,
         )
-        self._answering = None  # the ticket whose output is arriving: the last one queued
+        self._answering: Ticket | None = None  # whose output is arriving: the last one queued
 
     def _feed(self, data: bytes) -> None:
         now = trio.current_time()
@@ -54,7 +54,7 @@ class RepetierClient(_Client):
         else:
             self._on_line(line)
 
-    def _completed(self, tickets) -> None:
+    def _completed(self, tickets: list[Ticket]) -> None:
         if tickets:
             self._answering = tickets[-1]
         super()._completed(tickets)

@@ -1,7 +1,6 @@
 """The trio client for Ultimaker's binary protocol: the shared shell around the go-back-N window
 (fake_marlin.host.cores.ultimaker)."""
 
-from collections.abc import Callable
 
 import trio
 
@@ -18,17 +17,17 @@ from fake_marlin.host.codecs.ultimaker import (
 )
 from fake_marlin.host.cores.ultimaker import GoBackNWindow
 from fake_marlin.host.errors import PrinterHalted
-from fake_marlin.host.shell import ByteStream, ClientOptions, _Client
+from fake_marlin.host.shell import ByteStream, ClientOptions, LineCallback, StreamingClient
 
 
-class UltimakerClient(_Client):
+class UltimakerClient(StreamingClient):
     protocol = "ultimaker"
 
     def __init__(
         self,
         stream: ByteStream,
         options: ClientOptions = ClientOptions(),
-        on_line: Callable[[Line], None] | None = None,
+        on_line: LineCallback | None = None,
     ) -> None:
         super().__init__(stream, options, on_line)
         self._parser = FrameParser()

@@ -36,7 +36,7 @@ If L shows that lines counted done never arrived (that misread ok), they are sen
 the history kept here; a line is never renumbered.
 
 Line errors: Marlin prints Error, Resend and ok together. That ok is not a permission to send
-(printcore's bug, HOSTS.md): the host decides once the ok has come, or when another line or a
+(printcore's bug, docs/hosts.md): the host decides once the ok has come, or when another line or a
 short wait shows it was lost.
 
 Patience is silence-based: the printer has said nothing about its work for `timeout`
@@ -224,6 +224,7 @@ class MarlinSender(CommandQueue):
             self._probe_wanted = True
         else:
             head = self._in_flight()
+            assert head is not None  # else there was no deadline: nothing in flight, no probe
             if head.state is LineState.RECEIVED:
                 self._complete(head, (), confirmed=False)
             else:
@@ -349,6 +350,7 @@ class MarlinSender(CommandQueue):
     # -- deciding ------------------------------------------------------------------------
     def _settle_report(self, now: float) -> None:
         report, self._report = self._report, None
+        assert report is not None  # called only with a report open
         counter = report.printer_counter()
         if self._probe_since is not None:  # the answer to the probe (no line goes out meanwhile)
             self._probe_since = None

@@ -15,7 +15,7 @@ _COMMAND_WORD = re.compile(r"\s*([GMgm])0*(\d+)")
 
 def is_long_command(text: str) -> bool:
     match = _COMMAND_WORD.match(text)
-    return bool(match) and f"{match[1].upper()}{match[2] or '0'}" in LONG_COMMANDS
+    return match is not None and f"{match[1].upper()}{match[2] or '0'}" in LONG_COMMANDS
 
 
 

@@ -86,10 +86,6 @@ class GoBackNWindow(CommandQueue):
 
     # -- what the caller asks -----------------------------------------------------------
     @property
-    def in_flight(self) -> int:
-        return len(self._in_flight)
-
-    @property
     def idle(self) -> bool:
         return not self._backlog and not self._in_flight
 
