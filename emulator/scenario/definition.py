@@ -83,7 +83,7 @@ class Scenario:
 class _Reader:
     """Typed access to one table of the file, with errors that say where."""
 
-    def __init__(self, path: Path, where: str, table: dict) -> None:
+    def __init__(self, path: Path | str, where: str, table: dict) -> None:
         self.path, self.where, self.table = path, where, table
         self._used: set[str] = set()
 
@@ -165,20 +165,24 @@ def _printer(table: _Reader) -> PrinterSetup:
 def _faults(path: Path, entries: list, seed: int) -> FaultConfig:
     config = FaultConfig(seed=seed)
     for number, entry in enumerate(entries, start=1):
-        fault = parse_fault_table(entry, f"{path}: [[fault]] #{number}")
-        if isinstance(fault, FaultRule):
-            config = dataclasses.replace(config, rules=(*config.rules, fault))
-        else:
-            config = with_rate(config, *fault)
+        config = add_fault_table(config, entry, f"{path}: [[fault]] #{number}")
     return config
+
+
+def add_fault_table(config: FaultConfig, entry: object, where: str) -> FaultConfig:
+    """`config` with one more fault, given as a `[[fault]]` table (a dict); `where` names it
+    in errors."""
+    fault = parse_fault_table(entry, where)
+    if isinstance(fault, FaultRule):
+        return dataclasses.replace(config, rules=(*config.rules, fault))
+    return with_rate(config, *fault)
 
 
 def parse_fault_table(entry, where: str) -> FaultRule | tuple[str, str, float]:
     """One `[[fault]]` table: a triggered rule, or (direction, LineFaults field, rate)."""
     if not isinstance(entry, dict):
         raise ScenarioError(f"{where}: must be a table")
-    table = _Reader(Path(where), "", entry)
-    table.path = where  # errors name the place as given
+    table = _Reader(where, "", entry)  # errors name the place as given
     kinds = [k.value for k in FaultKind] + list(RATE_KINDS)
     kind = table.get("kind", str, None, kinds)
     if kind is None:
@@ -259,6 +263,8 @@ def _host(table: _Reader, printer: PrinterSetup) -> HostSetup:
     )
     if host.protocol is None and printer.protocol == "auto":
         table.fail("protocol", "is needed when the printer detects its protocol (printer.protocol = auto)")
+    if host.disconnect_after is not None and (host.protocol or printer.protocol) == "commstack":
+        table.fail("disconnect_after", "is for streaming hosts; a CommStack host uploads its job whole")
     table.finish()
     return host
 
