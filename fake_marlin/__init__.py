@@ -4,3 +4,5 @@ The installed package holds three parts, kept in their own top-level folders of 
 `fake_marlin.emulator` (the printer), `fake_marlin.host` (the host client) and `fake_marlin.wire`
 (wire facts both share).
 """
+
+__version__ = "0.2.0"

@@ -7,6 +7,7 @@ import time
 
 import trio
 
+from fake_marlin import __version__
 from fake_marlin.host.connect import DEFAULT_BAUDRATE, PROTOCOLS, load_job, open_printer
 from fake_marlin.host.shell import ClientOptions, sole_exception
 from fake_marlin.host.codecs import marlin, ultimaker
@@ -30,6 +31,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="fake-marlin-host", description="Talk to a 3D printer (real or fake-marlin) on a serial port."
     )
+    parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
     common = argparse.ArgumentParser(add_help=False)
     common.add_argument("--protocol", choices=PROTOCOLS, default="ultimaker")
     common.add_argument("--baud", type=_positive(int), default=DEFAULT_BAUDRATE)

@@ -1,7 +1,6 @@
 import io
 from contextlib import asynccontextmanager
 
-import pytest
 import trio
 import trio.testing
 
@@ -34,8 +33,3 @@ async def running_printer(config: ServerConfig = ServerConfig(protocol="ultimake
         await trio.testing.wait_all_tasks_blocked()
         yield RunningPrinter(link, server, journal_text)
         nursery.cancel_scope.cancel()
-
-
-@pytest.fixture
-def printer_factory():
-    return running_printer

@@ -2,6 +2,7 @@
 
 import argparse
 import contextlib
+import json
 import os
 import signal
 import sys
@@ -10,10 +11,11 @@ from pathlib import Path
 
 import trio
 
+from fake_marlin import __version__
 from fake_marlin.emulator.server.clock import ScaledClock
 from fake_marlin.emulator.control.server import Controller, check_control_path, serve_control
 from fake_marlin.emulator.faults.layer import FaultConfig, parse_fault
-from fake_marlin.emulator.scenario.definition import PrinterSetup, ScenarioError
+from fake_marlin.emulator.scenario.definition import PrinterSetup, ScenarioError, add_fault_table
 from fake_marlin.emulator.scenario.definition import load as load_scenario
 from fake_marlin.emulator.journal.writer import Journal
 from fake_marlin.emulator.link.pty import PtyLink
@@ -62,6 +64,16 @@ def _extruder_count(text: str) -> int:
     return int(text)
 
 
+def _json_table(text: str) -> dict[str, object]:
+    try:
+        table = json.loads(text)
+    except ValueError as error:
+        raise argparse.ArgumentTypeError(f"not JSON: {error}") from None
+    if not isinstance(table, dict):
+        raise argparse.ArgumentTypeError(f"expected a JSON object, got {text!r}")
+    return table
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="fake-marlin",
@@ -69,6 +81,7 @@ def build_parser() -> argparse.ArgumentParser:
         epilog="Also: `fake-marlin scenario run PATH...` runs scenarios with the built-in host; "
         "`fake-marlin verify JOB.gcode JOURNAL` checks a journal against its job.",
     )
+    parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
     parser.add_argument(
         "--protocol", choices=PROTOCOLS, default="auto",
         help="wire protocol; auto (default) decides from each connection's first bytes",
@@ -95,6 +108,11 @@ def build_parser() -> argparse.ArgumentParser:
         "--fault", action="append", default=[], metavar="DIRECTION:KIND=RATE",
         help="damage the line, e.g. to-printer:bit-errors=1e-4 or to-host:drop-bytes=0.001 "
         "(repeatable)",
+    )
+    parser.add_argument(
+        "--fault-table", action="append", default=[], metavar="JSON", type=_json_table,
+        help='a fault as a scenario\'s [[fault]] table, in JSON (repeatable), e.g. '
+        '\'{"kind": "drop", "direction": "to-host", "nth": 3}\'',
     )
     parser.add_argument("--seed", type=int, default=0, help="seed for random faults (default 0)")
     parser.add_argument(
@@ -188,6 +206,11 @@ def main(argv: list[str] | None = None) -> int:
             faults = parse_fault(spec, faults)
         except ValueError as error:
             parser.error(f"argument --fault: {error}")
+    for number, table in enumerate(args.fault_table, start=1):
+        try:
+            faults = add_fault_table(faults, table, f"--fault-table #{number}")
+        except ScenarioError as error:
+            parser.error(f"argument {error}")
     if args.sd_dir and not os.path.isdir(args.sd_dir):
         parser.error(f"argument --sd-dir: no directory {args.sd_dir}")
     if args.control and (problem := check_control_path(args.control)):

@@ -1,0 +1,258 @@
+"""Virtual printers for a host's own test suite: each a real `fake-marlin` process on a real pty.
+
+    from fake_marlin.testing import running_printer
+
+    with running_printer(protocol="marlin", speed=100) as printer:
+        host = MyHost(printer.port)            # any host: threaded, trio, asyncio, a script
+        host.print("job.gcode")
+        assert printer.journal == [...]        # the commands the printer executed
+        printer.control.inject(kind="thermal-runaway")
+
+With pytest the same comes as fixtures (`fake_printer`, `fake_printer_factory`; see
+fake_marlin.pytest_plugin). The printer runs as its own process, exactly the program users run,
+so it serves hosts in threads and in any event loop alike, and never competes with the test for
+the interpreter. A printer that crashes (or would not start) raises PrinterCrashed with what it
+printed on stderr.
+"""
+
+import json
+import os
+import queue
+import shutil
+import signal
+import subprocess
+import sys
+import tempfile
+import threading
+from collections.abc import Iterator, Mapping, Sequence
+from contextlib import contextmanager
+from pathlib import Path
+from typing import TypedDict, Unpack
+
+from fake_marlin.emulator.control.client import ControlClient
+
+__all__ = ["FakePrinter", "PrinterCrashed", "PrinterOptions", "running_printer", "start_printer"]
+
+START_TIMEOUT = 30.0  # seconds for the program to print its pty path
+STOP_TIMEOUT = 10.0
+DEFAULT_PROGRAM = (sys.executable, "-m", "fake_marlin.emulator.cli")
+
+
+class PrinterCrashed(AssertionError):
+    """The printer process failed: it would not start, or it died, or left a traceback."""
+
+
+class FakePrinter:
+    """One running virtual printer. `port` is the path a host opens (it follows the pty when a
+    `disconnect` fault brings the line back under a new name), `journal` the commands executed so
+    far, `control` the control channel."""
+
+    def __init__(
+        self, args: Sequence[str], directory: Path, keep_directory: bool,
+        program: Sequence[str] | None = None,
+    ) -> None:
+        self.directory = directory
+        self._keep_directory = keep_directory
+        self._journal_path = directory / "journal.log"
+        self._control_path = directory / "control.sock"
+        self._stderr_path = directory / "stderr.log"
+        self._control: ControlClient | None = None
+        self._stopped = False
+        self._final: tuple[str, list[str]] | None = None  # stderr and journal, kept at stop
+        self.returncode: int | None = None
+        command = [
+            *(program or DEFAULT_PROGRAM),
+            "--journal", str(self._journal_path), "--control", str(self._control_path), *args,
+        ]
+        self.args = tuple(command)
+        with open(self._stderr_path, "wb") as stderr:
+            self.process = subprocess.Popen(
+                command, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=stderr, text=True
+            )
+        self._paths: queue.Queue[str | None] = queue.Queue()
+        self._port: str | None = None
+        threading.Thread(target=self._read_paths, name="fake-printer-stdout", daemon=True).start()
+        try:
+            first = self._paths.get(timeout=START_TIMEOUT)
+        except queue.Empty:
+            first = None
+        if first is None:
+            self.stop(check=False)
+            raise PrinterCrashed(f"fake-marlin did not start ({' '.join(args)}):\n{self.stderr}")
+        self._port = first
+
+    def _read_paths(self) -> None:
+        assert self.process.stdout is not None
+        for line in self.process.stdout:
+            self._paths.put(line.strip())
+        self._paths.put(None)
+
+    # -- what a test reads ----------------------------------------------------------------
+    @property
+    def port(self) -> str:
+        """The pty to open (its /dev/pts path)."""
+        while True:
+            try:
+                path = self._paths.get_nowait()
+            except queue.Empty:
+                break
+            if path:
+                self._port = path
+        assert self._port is not None
+        return self._port
+
+    @property
+    def journal(self) -> list[str]:
+        """Every command the printer has executed, in order, as it executed it."""
+        self._check_alive()
+        if self._final is not None:
+            return list(self._final[1])
+        return self._read_journal()
+
+    def _read_journal(self) -> list[str]:
+        try:
+            return self._journal_path.read_text(encoding="ascii", errors="replace").splitlines()
+        except FileNotFoundError:
+            return []
+
+    @property
+    def control(self) -> ControlClient:
+        """The control channel: state(), inject(**fault), set_temperature(), set_target(), say()."""
+        self._check_alive()
+        if self._control is None:
+            self._control = ControlClient(str(self._control_path))
+        return self._control
+
+    @property
+    def stderr(self) -> str:
+        """What the printer printed on stderr (all of it, once it has stopped)."""
+        if self._final is not None:
+            return self._final[0]
+        try:
+            return self._stderr_path.read_text(errors="replace")
+        except FileNotFoundError:
+            return ""
+
+    @property
+    def alive(self) -> bool:
+        return self.process.poll() is None
+
+    def _check_alive(self) -> None:
+        if not self._stopped and self.process.poll() is not None:
+            raise PrinterCrashed(self._crash_report())
+
+    def _crash_report(self) -> str:
+        return f"the printer exited with code {self.process.returncode}:\n{self.stderr}"
+
+    # -- the end --------------------------------------------------------------------------
+    def stop(self, check: bool = True) -> None:
+        """Stop the printer as Ctrl-C does. With `check`, raise PrinterCrashed if it had died
+        before, or did not stop cleanly, or printed a traceback."""
+        if self._stopped:
+            return
+        died_on_its_own = self.process.poll() is not None
+        self._stopped = True
+        if self._control is not None:
+            self._control.close()
+        if not died_on_its_own:
+            self.process.send_signal(signal.SIGINT)
+        try:
+            self.returncode = self.process.wait(timeout=STOP_TIMEOUT)
+        except subprocess.TimeoutExpired:
+            self.process.kill()
+            self.returncode = self.process.wait()
+            if check:
+                raise PrinterCrashed(f"the printer did not stop within {STOP_TIMEOUT} s:\n{self.stderr}")
+        report = self._crash_report()
+        failed = died_on_its_own or self.returncode != 0 or "Traceback" in self.stderr
+        self._final = (self.stderr, self._read_journal())
+        if not self._keep_directory:
+            shutil.rmtree(self.directory, ignore_errors=True)
+        if check and failed:
+            raise PrinterCrashed(report)
+
+    def __enter__(self) -> "FakePrinter":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop(check=exc[0] is None)
+
+    def __repr__(self) -> str:
+        return f"<FakePrinter {self._port} {'running' if self.alive else 'stopped'}>"
+
+
+class PrinterOptions(TypedDict, total=False):
+    """A printer's settings, as `fake-marlin`'s command line takes them."""
+
+    protocol: str  # auto (default), marlin, ultimaker, repetier, commstack
+    speed: float  # simulated time runs this many times faster than real time (default 1)
+    extruders: int
+    sd_dir: str | os.PathLike[str]  # the directory behind the SD card (default: a temporary one)
+    advanced_ok: bool
+    baud: int | bool  # pace the line at this rate; True: at the rate the host sets
+    latency_ms: float
+    jitter_ms: float
+    faults: Sequence[Mapping[str, object]]  # tables as a scenario's [[fault]]
+    seed: int
+    scenario: str | os.PathLike[str]  # take settings and faults from this scenario file
+    boot_delay: float
+    capabilities: Mapping[str, bool]  # M115 Cap: lines, e.g. {"AUTOREPORT_TEMP": False}
+    link: str | os.PathLike[str]  # also make this path a symlink to the pty
+    extra_args: Sequence[str]  # more arguments, as on the command line
+
+
+def command_line(options: PrinterOptions) -> list[str]:
+    """The `fake-marlin` arguments for these options."""
+    unknown = set(options) - set(PrinterOptions.__annotations__)
+    if unknown:  # a typo in an untyped caller's keyword must not pass unnoticed
+        raise TypeError(f"unknown printer options: {', '.join(sorted(unknown))}")
+    args = ["--protocol", options.get("protocol", "auto"), "--speed", repr(float(options.get("speed", 1.0))),
+            "--extruders", str(options.get("extruders", 1)), "--seed", str(options.get("seed", 0))]
+    if "sd_dir" in options:
+        args += ["--sd-dir", os.fspath(options["sd_dir"])]
+    if options.get("advanced_ok"):
+        args.append("--advanced-ok")
+    baud = options.get("baud")
+    if baud is True:
+        args.append("--baud")
+    elif baud:
+        args += ["--baud", str(int(baud))]
+    delays = {"--latency-ms": options.get("latency_ms"), "--jitter-ms": options.get("jitter_ms"),
+              "--boot-delay": options.get("boot_delay")}
+    for flag, value in delays.items():
+        if value:
+            args += [flag, repr(float(value))]
+    for table in options.get("faults", ()):
+        args += ["--fault-table", json.dumps(dict(table))]
+    if "scenario" in options:
+        args += ["--scenario", os.fspath(options["scenario"])]
+    for name, enabled in options.get("capabilities", {}).items():
+        args += ["--capability", f"{name}={int(enabled)}"]
+    if "link" in options:
+        args += ["--link", os.fspath(options["link"])]
+    return [*args, *options.get("extra_args", ())]
+
+
+def start_printer(
+    keep_directory: bool = False, program: Sequence[str] | None = None,
+    **options: Unpack[PrinterOptions],
+) -> FakePrinter:
+    """Start a printer; stop it with `stop()`. `program` is the command that runs fake-marlin
+    (default: this Python's `-m fake_marlin.emulator.cli`); `keep_directory` keeps its journal
+    and stderr files."""
+    args = command_line(options)
+    # A short directory of its own: a Unix socket's path must stay under 108 bytes.
+    directory = Path(tempfile.mkdtemp(prefix="fake-marlin-"))
+    return FakePrinter(args, directory, keep_directory, program)
+
+
+@contextmanager
+def running_printer(**options: Unpack[PrinterOptions]) -> Iterator[FakePrinter]:
+    """A printer for the length of the block (see PrinterOptions)."""
+    printer = start_printer(**options)
+    try:
+        yield printer
+    except BaseException:
+        printer.stop(check=False)
+        raise
+    printer.stop()
