@@ -17,7 +17,6 @@ printed on stderr.
 
 import json
 import os
-import queue
 import shutil
 import signal
 import subprocess
@@ -44,14 +43,18 @@ class PrinterCrashed(AssertionError):
 
 class FakePrinter:
     """One running virtual printer. `port` is the path a host opens (it follows the pty when a
-    `disconnect` fault brings the line back under a new name), `journal` the commands executed so
-    far, `control` the control channel."""
+    `disconnect` fault brings the line back under a new name; `ports` lists every one announced),
+    `journal` the commands executed so far, `control` the control channel.
+
+    Once the printer has died on its own, `journal` and `control` raise PrinterCrashed until
+    `stop(check=False)` acknowledges it (then `journal` is what it had executed)."""
 
     def __init__(
         self, args: Sequence[str], directory: Path, keep_directory: bool,
-        program: Sequence[str] | None = None,
+        program: Sequence[str] | None = None, link: Path | None = None,
     ) -> None:
         self.directory = directory
+        self.link = link  # the symlink to the pty, if one was asked for
         self._keep_directory = keep_directory
         self._journal_path = directory / "journal.log"
         self._control_path = directory / "control.sock"
@@ -69,37 +72,42 @@ class FakePrinter:
             self.process = subprocess.Popen(
                 command, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=stderr, text=True
             )
-        self._paths: queue.Queue[str | None] = queue.Queue()
-        self._port: str | None = None
+        self.ports: list[str] = []  # every pty path the printer announced, the first first
+        self._announced = threading.Condition()
+        self._stdout_closed = False
         threading.Thread(target=self._read_paths, name="fake-printer-stdout", daemon=True).start()
-        try:
-            first = self._paths.get(timeout=START_TIMEOUT)
-        except queue.Empty:
-            first = None
-        if first is None:
+        if not self._wait_for(1, START_TIMEOUT):
             self.stop(check=False)
-            raise PrinterCrashed(f"fake-marlin did not start ({' '.join(args)}):\n{self.stderr}")
-        self._port = first
+            raise PrinterCrashed(f"fake-marlin did not start ({' '.join(self.args)}):\n{self.stderr}")
 
     def _read_paths(self) -> None:
         assert self.process.stdout is not None
         for line in self.process.stdout:
-            self._paths.put(line.strip())
-        self._paths.put(None)
+            with self._announced:
+                self.ports.append(line.strip())
+                self._announced.notify_all()
+        with self._announced:
+            self._stdout_closed = True
+            self._announced.notify_all()
+
+    def _wait_for(self, number: int, timeout: float) -> bool:
+        with self._announced:
+            self._announced.wait_for(lambda: len(self.ports) >= number or self._stdout_closed, timeout)
+            return len(self.ports) >= number
 
     # -- what a test reads ----------------------------------------------------------------
     @property
     def port(self) -> str:
-        """The pty to open (its /dev/pts path)."""
-        while True:
-            try:
-                path = self._paths.get_nowait()
-            except queue.Empty:
-                break
-            if path:
-                self._port = path
-        assert self._port is not None
-        return self._port
+        """The pty to open (its /dev/pts path): the one announced last."""
+        return self.ports[-1]
+
+    def wait_for_port(self, number: int, timeout: float = 10.0) -> str:
+        """The `number`-th pty path the printer announced (1: the first), waiting for it: a
+        `disconnect` fault's line comes back announced anew, perhaps under the same name."""
+        if not self._wait_for(number, timeout):
+            self._check_alive()
+            raise TimeoutError(f"the printer announced {len(self.ports)} ports in {timeout} s, not {number}")
+        return self.ports[number - 1]
 
     @property
     def journal(self) -> list[str]:
@@ -178,7 +186,7 @@ class FakePrinter:
         self.stop(check=exc[0] is None)
 
     def __repr__(self) -> str:
-        return f"<FakePrinter {self._port} {'running' if self.alive else 'stopped'}>"
+        return f"<FakePrinter {self.ports[-1] if self.ports else None} {'running' if self.alive else 'stopped'}>"
 
 
 class PrinterOptions(TypedDict, total=False):
@@ -201,11 +209,17 @@ class PrinterOptions(TypedDict, total=False):
     extra_args: Sequence[str]  # more arguments, as on the command line
 
 
+OWN_FLAGS = ("--journal", "--control")  # the FakePrinter's: its journal and control depend on them
+
+
 def command_line(options: PrinterOptions) -> list[str]:
     """The `fake-marlin` arguments for these options."""
     unknown = set(options) - set(PrinterOptions.__annotations__)
     if unknown:  # a typo in an untyped caller's keyword must not pass unnoticed
         raise TypeError(f"unknown printer options: {', '.join(sorted(unknown))}")
+    taken = [arg for arg in options.get("extra_args", ()) if arg.split("=")[0] in OWN_FLAGS]
+    if taken:
+        raise ValueError(f"extra_args cannot set {', '.join(taken)}: the printer's .journal and .control use them")
     args = ["--protocol", options.get("protocol", "auto"), "--speed", repr(float(options.get("speed", 1.0))),
             "--extruders", str(options.get("extruders", 1)), "--seed", str(options.get("seed", 0))]
     if "sd_dir" in options:
@@ -243,7 +257,12 @@ def start_printer(
     args = command_line(options)
     # A short directory of its own: a Unix socket's path must stay under 108 bytes.
     directory = Path(tempfile.mkdtemp(prefix="fake-marlin-"))
-    return FakePrinter(args, directory, keep_directory, program)
+    if "sd_dir" not in options:
+        # The card lives in the printer's directory, so it goes with it even after a kill.
+        (directory / "sd").mkdir()
+        args += ["--sd-dir", str(directory / "sd")]
+    link = options.get("link")
+    return FakePrinter(args, directory, keep_directory, program, None if link is None else Path(link))
 
 
 @contextmanager

@@ -2,7 +2,6 @@
 
 import json
 import re
-import signal
 import subprocess
 import sys
 from pathlib import Path
@@ -14,31 +13,6 @@ from fake_marlin.wire.gcode import strip_comment
 pytestmark = pytest.mark.e2e
 BIN = Path(sys.executable).parent
 TEMPERATURES = "T:21.00 /0.00 B:21.00 /0.00 @:0 B@:0"
-
-
-@pytest.fixture
-def printer(tmp_path):
-    """Start fake-marlin with the given options; yields (pty path, journal reader)."""
-    started = []
-
-    def start(*args: str):
-        journal = tmp_path / "journal.log"
-        process = subprocess.Popen(
-            [BIN / "fake-marlin", "--journal", str(journal), *args],
-            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-        )
-        started.append(process)
-        pty = process.stdout.readline().strip()
-        assert pty.startswith("/dev/pts/"), process.stderr.read()
-        return pty, lambda: journal.read_text().splitlines() if journal.exists() else []
-
-    yield start
-    for process in started:
-        process.send_signal(signal.SIGINT)
-        try:
-            process.wait(timeout=10)
-        except subprocess.TimeoutExpired:
-            process.kill()
 
 
 def host(*args, timeout: float = 120) -> subprocess.CompletedProcess:
@@ -71,11 +45,13 @@ def run_bare(journal: list[str], commands: list[str]) -> tuple[list[str], list[s
     return ran, bare
 
 
-def test_a_2000_command_print_over_a_noisy_line_runs_every_command_once(printer, tmp_path):
-    pty, journal = printer("--protocol", "auto", "--speed", "1000",
-                           "--fault", "to-printer:corrupt-lines=0.02", "--seed", "7")
+def test_a_2000_command_print_over_a_noisy_line_runs_every_command_once(fake_printer_factory, tmp_path):
+    printer = fake_printer_factory(
+        protocol="auto", speed=1000, seed=7,
+        faults=[{"kind": "corrupt-lines", "direction": "to-printer", "rate": 0.02}],
+    )
     commands = write_job(tmp_path / "part.gcode", 2000)
-    result = host("print", pty, tmp_path / "part.gcode", "--protocol", "marlin", "--json")
+    result = host("print", printer.port, tmp_path / "part.gcode", "--protocol", "marlin", "--json")
     assert result.returncode == 0, result.stderr
     summary = json.loads(result.stdout)
     assert summary["commands"] == len(commands)
@@ -84,33 +60,33 @@ def test_a_2000_command_print_over_a_noisy_line_runs_every_command_once(printer,
     # line counter was 0 (read with a probe the printer refuses, never runs) and no M110 was
     # needed. Every line in the journal is a job command, in order, once, except what Marlin ran
     # bare from lines the fault damaged in their first character.
-    ran, bare = run_bare(journal(), commands)
+    ran, bare = run_bare(printer.journal, commands)
     assert ran == commands
     assert len(bare) <= 5
 
 
-def test_a_clean_print_adds_nothing_and_resends_nothing(printer, tmp_path):
-    pty, journal = printer("--protocol", "marlin", "--speed", "1000")
+def test_a_clean_print_adds_nothing_and_resends_nothing(fake_printer_factory, tmp_path):
+    printer = fake_printer_factory(protocol="marlin", speed=1000)
     commands = write_job(tmp_path / "part.gcode", 2000)
-    result = host("print", pty, tmp_path / "part.gcode", "--protocol", "marlin", "--json")
+    result = host("print", printer.port, tmp_path / "part.gcode", "--protocol", "marlin", "--json")
     assert result.returncode == 0, result.stderr
     summary = json.loads(result.stdout)
     assert (summary["commands"], summary["resends"], summary["timeouts"]) == (len(commands), 0, 0)
-    assert journal() == commands
+    assert printer.journal == commands
 
 
-def test_send_prints_the_temperatures(printer):
-    pty, journal = printer("--protocol", "auto")
-    result = host("send", pty, "M105", "--protocol", "marlin")
+def test_send_prints_the_temperatures(fake_printer_factory):
+    printer = fake_printer_factory(protocol="auto")
+    result = host("send", printer.port, "M105", "--protocol", "marlin")
     assert result.returncode == 0, result.stderr
     assert result.stdout == f"{TEMPERATURES}\n"
-    assert journal() == ["M105"]
+    assert printer.journal == ["M105"]
 
 
-def test_a_job_the_host_cannot_number_is_refused_before_sending(printer, tmp_path):
-    pty, journal = printer("--protocol", "marlin")
+def test_a_job_the_host_cannot_number_is_refused_before_sending(fake_printer_factory, tmp_path):
+    printer = fake_printer_factory(protocol="marlin")
     (tmp_path / "bad.gcode").write_text("G28\nM110 N100\n")
-    result = host("print", pty, tmp_path / "bad.gcode", "--protocol", "marlin")
+    result = host("print", printer.port, tmp_path / "bad.gcode", "--protocol", "marlin")
     assert result.returncode == 2
     assert "bad.gcode:2" in result.stderr and "M110" in result.stderr and "Traceback" not in result.stderr
-    assert journal() == []
+    assert printer.journal == []

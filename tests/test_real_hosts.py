@@ -3,7 +3,8 @@ serial layer and pyserial's miniterm, unchanged, over the emulator's pty.
 
 The hosts run in their own cached venvs (tests/hosts/venvs.py), built on first use; if they
 cannot be installed these tests fail rather than skip, since proving the hosts work is the point.
-FAKE_MARLIN_EMULATOR (a command line) runs them against another printer program instead.
+FAKE_MARLIN_EMULATOR (a command line) runs them against another printer program instead: it is
+the `program` of fake_marlin.testing, so it takes fake-marlin's options.
 """
 
 import json
@@ -11,7 +12,6 @@ import os
 import re
 import select
 import shlex
-import signal
 import subprocess
 import sys
 import time
@@ -19,13 +19,14 @@ from pathlib import Path
 
 import pytest
 
-from tests.hosts import venvs
 from fake_marlin.wire.gcode import strip_comment
+from tests.hosts import venvs
 
 pytestmark = pytest.mark.e2e
 HOSTS = Path(__file__).parent / "hosts"
 EMULATOR = shlex.split(os.environ.get("FAKE_MARLIN_EMULATOR", "")) or [
     str(Path(sys.executable).parent / "fake-marlin")]
+PRINTER = {"program": EMULATOR, "protocol": "marlin", "speed": 50}  # for fake_printer_factory
 DRIVER_TIMEOUT = 120
 NUMBERED = re.compile(r"N-?\d+ ?(.*)\*\d+")
 # What OctoPrint 1.11 sends on its own (util/comm.py): on connect (M21 only if no `SD card ok`
@@ -33,43 +34,6 @@ NUMBERED = re.compile(r"N-?\d+ ?(.*)\*\d+")
 # at any time.
 OCTOPRINT_HANDSHAKE = {"M110 N0", "M115", "M21", "M20", "M20 L T", "M155 S2", "M154 S5", "M27 S1"}
 OCTOPRINT_ANY_TIME = {"M105", "M113 S2"}
-
-
-class Emulator:
-    def __init__(self, tmp_path: Path, *extra: str) -> None:
-        self.link = tmp_path / "printer"
-        self.journal = tmp_path / "journal.log"
-        self.stderr = tmp_path / "emulator.stderr"
-        with open(self.stderr, "w") as stderr:
-            self.process = subprocess.Popen(
-                [*EMULATOR, "--protocol", "marlin", "--speed", "50", "--link", str(self.link),
-                 "--journal", str(self.journal), *extra],
-                stdout=subprocess.PIPE, stderr=stderr, text=True,
-            )
-        ready, _, _ = select.select([self.process.stdout], [], [], 10)
-        self.pty = self.process.stdout.readline().strip() if ready else ""
-        if not self.pty.startswith("/dev/"):
-            self.stop()
-            pytest.fail(f"the emulator printed no pty path: {self.pty!r}\n{self.stderr.read_text()}")
-
-    def journal_lines(self) -> list[str]:
-        return self.journal.read_text().splitlines() if self.journal.exists() else []
-
-    def stop(self) -> None:
-        if self.process.poll() is None:
-            self.process.send_signal(signal.SIGINT)
-            try:
-                self.process.wait(timeout=10)
-            except subprocess.TimeoutExpired:
-                self.process.kill()
-                self.process.wait()
-
-
-@pytest.fixture
-def printer(tmp_path):
-    emulator = Emulator(tmp_path)
-    yield emulator
-    emulator.stop()
 
 
 def host_python(request, host: venvs.Host) -> Path:
@@ -134,10 +98,12 @@ def unnumbered(line: str) -> str:
     return match.group(1) if match else line
 
 
-def test_printcore_streams_a_file(printer, printrun_python, tmp_path):
+def test_printcore_streams_a_file(fake_printer_factory, printrun_python, tmp_path):
+    link = tmp_path / "printer"
+    printer = fake_printer_factory(**PRINTER, link=link)
     gcode = tmp_path / "job.gcode"
     commands = write_job(gcode, 2000)
-    code, report = run_driver(printrun_python, "printcore_driver.py", printer.link, gcode)
+    code, report = run_driver(printrun_python, "printcore_driver.py", link, gcode)
     assert code == 0 and report["rubbish"] == [] and report["errors"] == [] and not report["printer_errors"], json.dumps(
         {key: value for key, value in report.items() if key != "sent"} | {"last_sent": report["sent"][-5:]}, indent=1)
     # printcore greets with bare M105 (again after each 3.75 s of silence until online) and
@@ -145,37 +111,41 @@ def test_printcore_streams_a_file(printer, printrun_python, tmp_path):
     sent = [unnumbered(line) for line in report["sent"]]
     hellos = len(sent) - len(commands) - 2
     assert hellos >= 1 and sent == ["M105"] * hellos + ["M110 N-1", *commands, "M110 N-1"]
-    assert printer.journal_lines() == sent
+    assert printer.journal == sent
 
 
-def test_printcore_survives_a_line_that_corrupts_bytes_to_the_printer(printrun_python, tmp_path):
+def test_printcore_survives_a_line_that_corrupts_bytes_to_the_printer(
+        fake_printer_factory, printrun_python, tmp_path):
     """Bit errors on the way in draw `Error:` + `Resend:` + `ok`; printcore resends, and the
     printer still runs every line exactly once."""
-    printer = Emulator(tmp_path, "--fault", "to-printer:corrupt-lines=0.02", "--seed", "7")
-    try:
-        gcode = tmp_path / "job.gcode"
-        commands = write_job(gcode, 2000)
-        code, report = run_driver(printrun_python, "printcore_driver.py", printer.link, gcode)
-        assert code == 0 and report["errors"] == [], json.dumps(report["errors"])
-        # A flip in a line's leading `N` leaves a bare line, which Marlin does not check: it runs
-        # it as an unknown command (and the next line's number error gets the real one resent).
-        unknown = report["unknown_commands"]
-        assert all(re.fullmatch(r"[^N]\d+ .*", text) for text in unknown), unknown
-        journal = [line for line in printer.journal_lines() if line not in unknown]
-        start = journal.index("M110 N-1")
-        assert journal[start + 1:] == [*commands, "M110 N-1"]
-        assert report["resends"] > 10, "the fault layer provoked too few errors to prove anything"
-        assert report["resends"] == len(report["printer_errors"])
-        assert any("checksum mismatch" in line for line in report["printer_errors"])
-        assert any("Line Number is not" in line for line in report["printer_errors"])
-    finally:
-        printer.stop()
+    link = tmp_path / "printer"
+    printer = fake_printer_factory(
+        **PRINTER, link=link, seed=7,
+        faults=[{"kind": "corrupt-lines", "direction": "to-printer", "rate": 0.02}],
+    )
+    gcode = tmp_path / "job.gcode"
+    commands = write_job(gcode, 2000)
+    code, report = run_driver(printrun_python, "printcore_driver.py", link, gcode)
+    assert code == 0 and report["errors"] == [], json.dumps(report["errors"])
+    # A flip in a line's leading `N` leaves a bare line, which Marlin does not check: it runs
+    # it as an unknown command (and the next line's number error gets the real one resent).
+    unknown = report["unknown_commands"]
+    assert all(re.fullmatch(r"[^N]\d+ .*", text) for text in unknown), unknown
+    journal = [line for line in printer.journal if line not in unknown]
+    start = journal.index("M110 N-1")
+    assert journal[start + 1:] == [*commands, "M110 N-1"]
+    assert report["resends"] > 10, "the fault layer provoked too few errors to prove anything"
+    assert report["resends"] == len(report["printer_errors"])
+    assert any("checksum mismatch" in line for line in report["printer_errors"])
+    assert any("Line Number is not" in line for line in report["printer_errors"])
 
 
-def test_octoprint_connects_and_prints(printer, octoprint_python, tmp_path):
+def test_octoprint_connects_and_prints(fake_printer_factory, octoprint_python, tmp_path):
+    link = tmp_path / "printer"
+    printer = fake_printer_factory(**PRINTER, link=link)
     gcode = tmp_path / "job.gcode"
     commands = write_job(gcode, 300)
-    code, report = run_driver(octoprint_python, "octoprint_driver.py", printer.link, gcode)
+    code, report = run_driver(octoprint_python, "octoprint_driver.py", link, gcode)
     summary = {key: value for key, value in report.items() if key not in ("sent", "received")}
     summary |= {"temperatures": report["temperatures"][-1:], "last_sent": report["sent"][-5:],
                 "last_received": report["received"][-15:]}
@@ -188,7 +158,7 @@ def test_octoprint_connects_and_prints(printer, octoprint_python, tmp_path):
     # Every line OctoPrint wrote was executed exactly once (no resends on a clean pty). OctoPrint
     # strips only `;` comments: `( )` ones reach the printer, which must ignore them.
     sent = [strip_comment(unnumbered(line)) for line in report["sent"]]
-    journal = printer.journal_lines()
+    journal = printer.journal
     assert journal == sent
     # The job starts at OctoPrint's last `M110 N0` and ends with an M400 it appends and waits for
     # before calling the job done. In between it may poll (M105, when the printer does not
@@ -236,9 +206,11 @@ class Terminal:
         os.close(self.master)
 
 
-def test_miniterm_typed_commands_get_answers(printer):
+def test_miniterm_typed_commands_get_answers(fake_printer_factory, tmp_path):
+    link = tmp_path / "printer"
+    printer = fake_printer_factory(**PRINTER, link=link)
     # The default --eol CRLF: Enter (CR, ICRNL makes it LF) goes out as "\r\n".
-    terminal = Terminal([sys.executable, "-m", "serial.tools.miniterm", str(printer.link), "250000"])
+    terminal = Terminal([sys.executable, "-m", "serial.tools.miniterm", str(link), "250000"])
     try:
         terminal.expect(r"--- Miniterm on .* ---")
         terminal.expect(r"\bstart\b")  # opening the port reboots the printer, as DTR would
@@ -253,4 +225,4 @@ def test_miniterm_typed_commands_get_answers(printer):
         assert terminal.process.wait(timeout=10) == 0
     finally:
         terminal.close()
-    assert printer.journal_lines() == ["M105", "G28", "M114"]
+    assert printer.journal == ["M105", "G28", "M114"]

@@ -1,10 +1,5 @@
 """The Arduino Mega's STK500v2 bootloader that answers first in `--protocol auto`; its hand-over."""
 
-import signal
-import subprocess
-import sys
-from pathlib import Path
-
 import pytest
 import serial
 import trio
@@ -22,9 +17,9 @@ from fake_marlin.emulator.protocols.stk500 import (
 )
 from fake_marlin.emulator.server.lifecycle import ServerConfig
 from fake_marlin.emulator.sessions.stk500 import BYTE_TIMEOUT
+from fake_marlin.wire.ultimaker import encode_packet
 from tests.conftest import running_printer
 from tests.terminal import Terminal, numbered
-from fake_marlin.wire.ultimaker import encode_packet
 
 TEMPERATURES = "T:21.00 /0.00 B:21.00 /0.00 @:0 B@:0"
 ENTER = bytes((0x10, 0xC8, 0x64, 0x19, 0x20, 0x00, 0x53, 0x03, 0xAC, 0x53, 0x00, 0x00))
@@ -51,7 +46,7 @@ def reply_to(seq: int, body: bytes) -> bytes:
     return protocol.send(Reply(event.seq, answer(event.body)))
 
 
-# -- the wire, against PROTOCOLS.md section 4 ------------------------------------------------
+# -- the wire, against docs/protocols.md section 4 -------------------------------------------
 @pytest.mark.parametrize(
     "seq, body, message, reply",
     [
@@ -298,26 +293,7 @@ async def test_a_bad_checksum_gets_no_reply_from_the_printer_either(autojump_clo
         assert await programmer.body(SIGN_ON) == b"\x01\x00\x08AVRISP_2"
 
 
-# -- the real program over a real pty --------------------------------------------------------
-BIN = Path(sys.executable).parent
-
-
-@pytest.fixture
-def fake_marlin():
-    process = subprocess.Popen(
-        [BIN / "fake-marlin"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
-    )
-    pty = process.stdout.readline().strip()
-    assert pty.startswith("/dev/pts/"), process.stderr.read()
-    yield pty
-    process.send_signal(signal.SIGINT)
-    try:
-        process.wait(timeout=10)
-    except subprocess.TimeoutExpired:
-        process.kill()
-        raise
-
-
+# -- the real program over a real pty (fake_printer: fake-marlin with its defaults) ----------
 def read_message(port: serial.Serial) -> bytes:
     header = port.read(5)
     assert len(header) == 5 and header[0] == 0x1B, header
@@ -326,8 +302,8 @@ def read_message(port: serial.Serial) -> bytes:
 
 
 @pytest.mark.e2e
-def test_curas_probe_then_m105_over_a_real_pty(fake_marlin):
-    with serial.Serial(fake_marlin, 115200, timeout=5) as port:
+def test_curas_probe_then_m105_over_a_real_pty(fake_printer):
+    with serial.Serial(fake_printer.port, 115200, timeout=5) as port:
         for seq, body, reply in [
             (1, ENTER, b"\x10\x00"),
             (2, LOAD_ADDRESS, b"\x06\x00"),
