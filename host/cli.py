@@ -8,10 +8,10 @@ import time
 import trio
 
 from fake_marlin import __version__
-from fake_marlin.host.connect import DEFAULT_BAUDRATE, PROTOCOLS, load_job, open_printer
-from fake_marlin.host.shell import ClientOptions, sole_exception
 from fake_marlin.host.codecs import marlin, ultimaker
+from fake_marlin.host.connect import DEFAULT_BAUDRATE, PROTOCOLS, load_job, open_printer
 from fake_marlin.host.errors import HostError, RemoteError
+from fake_marlin.host.shell import ClientOptions, sole_exception
 
 
 def _positive(kind):

@@ -10,13 +10,16 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from fake_marlin.emulator.faults.layer import FaultConfig, parse_fault
-from fake_marlin.emulator.printer.model import Printer, PrinterConfig
-from fake_marlin.emulator.protocols.commstack import CommStackProtocol, FrameRejected, RequestReceived
-from fake_marlin.emulator.server.lifecycle import ServerConfig
 from fake_marlin.emulator.journal.verify import is_host_command
+from fake_marlin.emulator.printer.model import Printer, PrinterConfig
+from fake_marlin.emulator.protocols.commstack import (
+    CommStackProtocol,
+    FrameRejected,
+    RequestReceived,
+)
+from fake_marlin.emulator.server.lifecycle import ServerConfig
 from fake_marlin.host.connect import connect
 from fake_marlin.host.cores.commstack import CommStackEndpoint
-from tests.conftest import running_printer
 from fake_marlin.wire.commstack import (
     BadData,
     BadHeader,
@@ -28,6 +31,7 @@ from fake_marlin.wire.commstack import (
     encode_packet,
     starts_with_header,
 )
+from tests.conftest import running_printer
 
 PING = Packet(Task.PING, CommType.REQUEST)
 

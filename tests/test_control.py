@@ -5,8 +5,8 @@ import socket
 import pytest
 import trio
 
-from fake_marlin.emulator.control.server import Controller, serve_control
 from fake_marlin.emulator.control.client import ControlClient, ControlRequestError
+from fake_marlin.emulator.control.server import Controller, serve_control
 from fake_marlin.emulator.server.lifecycle import ServerConfig
 from tests.conftest import running_printer
 from tests.terminal import Terminal

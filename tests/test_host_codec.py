@@ -5,6 +5,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from fake_marlin.emulator.protocols.ultimaker import CommandReceived, UltimakerProtocol
+from fake_marlin.host.codecs.lines import MAX_LINE
 from fake_marlin.host.codecs.ultimaker import (
     Ack,
     CorruptFrame,
@@ -16,7 +17,6 @@ from fake_marlin.host.codecs.ultimaker import (
     check_command,
     encode_command,
 )
-from fake_marlin.host.codecs.lines import MAX_LINE
 from fake_marlin.host.errors import CommandError
 from fake_marlin.wire.ultimaker import frame_body
 

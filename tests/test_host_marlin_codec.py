@@ -5,7 +5,12 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from fake_marlin.emulator.protocols.marlin import EmergencyCommand, LineReceived, LineRejected, MarlinProtocol
+from fake_marlin.emulator.protocols.marlin import (
+    EmergencyCommand,
+    LineReceived,
+    LineRejected,
+    MarlinProtocol,
+)
 from fake_marlin.host.codecs.marlin import (
     MAX_COMMAND,
     PROBE,

@@ -6,13 +6,12 @@ import random
 import pytest
 import trio
 
-from fake_marlin.emulator.printer.model import Printer, PrinterConfig
 from fake_marlin.emulator.server.lifecycle import ServerConfig
-from fake_marlin.host.connect import connect
-from fake_marlin.host.shell import ClientOptions
 from fake_marlin.host.codecs.marlin import PROBE, LineKind, Ok, encode_line
-from fake_marlin.host.errors import CommandError, PrinterHalted, PrinterNotResponding, PrinterReset
+from fake_marlin.host.connect import connect
 from fake_marlin.host.cores.marlin import MarlinSender
+from fake_marlin.host.errors import CommandError, PrinterHalted, PrinterNotResponding, PrinterReset
+from fake_marlin.host.shell import ClientOptions
 from tests.conftest import running_printer
 from tests.faults import LineDroppingStream
 from tests.terminal import Terminal, numbered

@@ -6,9 +6,9 @@ import trio
 
 from fake_marlin.emulator.printer.model import Printer, PrinterConfig
 from fake_marlin.emulator.server.lifecycle import ServerConfig
+from fake_marlin.wire.ultimaker import encode_packet
 from tests.conftest import running_printer
 from tests.terminal import Terminal, numbered
-from fake_marlin.wire.ultimaker import encode_packet
 
 TEMPERATURES = "T:21.00 /0.00 B:21.00 /0.00 @:0 B@:0"
 

@@ -9,6 +9,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from fake_marlin.emulator.faults.layer import FaultConfig, parse_fault
+from fake_marlin.emulator.journal.verify import verify
 from fake_marlin.emulator.protocols.repetier import (
     CommandReceived,
     CommandRejected,
@@ -17,12 +18,11 @@ from fake_marlin.emulator.protocols.repetier import (
     RepetierProtocol,
 )
 from fake_marlin.emulator.server.lifecycle import ServerConfig
-from fake_marlin.emulator.journal.verify import verify
-from fake_marlin.host.connect import connect
 from fake_marlin.host.codecs import repetier as host_codec
-from tests.conftest import running_printer
+from fake_marlin.host.connect import connect
 from fake_marlin.wire import repetier
 from fake_marlin.wire.gcode import canonical
+from tests.conftest import running_printer
 
 VECTORS = [  # docs/protocols.md section 2
     ("G28", 1, False, "850001001ca2ba"),

@@ -2,13 +2,13 @@
 
 import trio
 
-from fake_marlin.host.connect import connect
-from fake_marlin.host.shell import ClientOptions
 from fake_marlin.host.codecs.ultimaker import Ack, FrameParser, RoomInfo
+from fake_marlin.host.connect import connect
 from fake_marlin.host.errors import CommandError, PrinterReset
+from fake_marlin.host.shell import ClientOptions
+from fake_marlin.wire.ultimaker import encode_packet
 from tests.conftest import running_printer
 from tests.faults import DamagingStream, LineDroppingStream
-from fake_marlin.wire.ultimaker import encode_packet
 
 JOB = [f"G1 X{n % 50} Y{n % 7} F6000" for n in range(400)] + ["M400", "M114"]
 

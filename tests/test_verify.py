@@ -14,8 +14,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import fake_marlin.emulator.journal.verify as verify_module
-from fake_marlin.emulator.journal.verify import Kind, job_commands, verify
 from fake_marlin.emulator.cli.verify import report
+from fake_marlin.emulator.journal.verify import Kind, job_commands, verify
 
 MISSING, DUPLICATED, REORDERED, EXTRA = Kind.MISSING, Kind.DUPLICATED, Kind.REORDERED, Kind.EXTRA
 BIN = Path(sys.executable).parent

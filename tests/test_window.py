@@ -2,9 +2,9 @@
 
 import pytest
 
-from fake_marlin.host.errors import PrinterNotResponding, PrinterReset
 from fake_marlin.host.cores.queue import is_long_command
 from fake_marlin.host.cores.ultimaker import GoBackNWindow
+from fake_marlin.host.errors import PrinterNotResponding, PrinterReset
 
 
 def seqs(transmits):

@@ -12,14 +12,14 @@ from pathlib import Path
 import trio
 
 from fake_marlin import __version__
-from fake_marlin.emulator.server.clock import ScaledClock
 from fake_marlin.emulator.control.server import Controller, check_control_path, serve_control
 from fake_marlin.emulator.faults.layer import FaultConfig, parse_fault
-from fake_marlin.emulator.scenario.definition import PrinterSetup, ScenarioError, add_fault_table
-from fake_marlin.emulator.scenario.definition import load as load_scenario
 from fake_marlin.emulator.journal.writer import Journal
 from fake_marlin.emulator.link.pty import PtyLink
 from fake_marlin.emulator.printer.model import DEFAULT_CAPABILITIES, Printer, PrinterConfig
+from fake_marlin.emulator.scenario.definition import PrinterSetup, ScenarioError, add_fault_table
+from fake_marlin.emulator.scenario.definition import load as load_scenario
+from fake_marlin.emulator.server.clock import ScaledClock
 from fake_marlin.emulator.server.lifecycle import PROTOCOLS, PrinterServer, ServerConfig
 
 

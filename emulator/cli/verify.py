@@ -10,7 +10,14 @@ import os
 import sys
 from collections import Counter
 
-from fake_marlin.emulator.journal.verify import FAILURES, Kind, Problem, Verification, job_commands, verify
+from fake_marlin.emulator.journal.verify import (
+    FAILURES,
+    Kind,
+    Problem,
+    Verification,
+    job_commands,
+    verify,
+)
 
 PROG = "fake-marlin verify"
 

@@ -9,7 +9,9 @@ import math
 import trio
 
 from fake_marlin.emulator.link.base import HostOpened
-from fake_marlin.host.errors import ConnectionLost  # the in-memory host end fails as a serial port does
+from fake_marlin.host.errors import (
+    ConnectionLost,  # the in-memory host end fails as a serial port does
+)
 
 
 class MemoryLink:

@@ -9,8 +9,8 @@ import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from fake_marlin.emulator.faults.rules import LINK_KINDS, FaultKind, FaultRule, Trigger
 from fake_marlin.emulator.faults.layer import RATE_KINDS, FaultConfig, with_rate
+from fake_marlin.emulator.faults.rules import LINK_KINDS, FaultKind, FaultRule, Trigger
 from fake_marlin.emulator.link.conditions import LinkConditions
 
 DIRECTIONS = ("to-printer", "to-host")

@@ -12,15 +12,15 @@ from pathlib import Path
 import trio
 import trio.testing
 
+from fake_marlin.emulator.journal.verify import FAILURES, Kind, verify
 from fake_marlin.emulator.journal.writer import Journal
 from fake_marlin.emulator.link.memory import MemoryLink
 from fake_marlin.emulator.printer.model import Printer, PrinterConfig
 from fake_marlin.emulator.scenario.definition import Scenario
 from fake_marlin.emulator.server.lifecycle import PrinterServer, ServerConfig
-from fake_marlin.emulator.journal.verify import FAILURES, Kind, verify
 from fake_marlin.host.connect import connect
-from fake_marlin.host.shell import ClientOptions, PrintSummary, StreamingClient, sole_exception
 from fake_marlin.host.errors import ConnectionLost, HostError
+from fake_marlin.host.shell import ClientOptions, PrintSummary, StreamingClient, sole_exception
 
 # A scenario that has not finished after a simulated day is stuck, whatever it does.
 SIMULATED_TIME_LIMIT = 24 * 3600.0

@@ -5,8 +5,8 @@ from dataclasses import dataclass
 
 import trio
 
-from fake_marlin.emulator.faults.rules import LINK_KINDS, FaultKind, FaultRule, printer_failure
 from fake_marlin.emulator.faults.layer import FaultConfig, FaultLayer, Segment
+from fake_marlin.emulator.faults.rules import LINK_KINDS, FaultKind, FaultRule, printer_failure
 from fake_marlin.emulator.journal.writer import Journal
 from fake_marlin.emulator.link.base import HostOpened, Link
 from fake_marlin.emulator.link.conditions import LinkConditions, Pipe

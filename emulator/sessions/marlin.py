@@ -9,7 +9,13 @@ import trio
 from fake_marlin.emulator.journal.writer import Journal
 from fake_marlin.emulator.printer.gcode import Command, parse
 from fake_marlin.emulator.printer.model import SELF_REPORTING, Printer, Reply
-from fake_marlin.emulator.protocols.marlin import EmergencyCommand, LineReceived, MarlinProtocol, Ok, Output
+from fake_marlin.emulator.protocols.marlin import (
+    EmergencyCommand,
+    LineReceived,
+    MarlinProtocol,
+    Ok,
+    Output,
+)
 from fake_marlin.emulator.sessions.driver import hold_queue_full, run_command
 
 BUSY_INTERVAL = 2.0  # HOST_KEEPALIVE default; M113 changes it

@@ -9,7 +9,13 @@ from collections.abc import Callable, Iterable
 
 import trio
 
-from fake_marlin.emulator.protocols.stk500 import LeftBootloader, MessageReceived, Reply, Stk500Protocol, answer
+from fake_marlin.emulator.protocols.stk500 import (
+    LeftBootloader,
+    MessageReceived,
+    Reply,
+    Stk500Protocol,
+    answer,
+)
 from fake_marlin.emulator.sessions.base import HandsOver, Session
 
 # stk500boot.c's recchar_timeout() polls the UART F_CPU / 2 times for each next byte, then jumps

@@ -19,7 +19,14 @@ import trio
 from fake_marlin.host.cores import commstack
 from fake_marlin.host.cores.commstack import CommStackEndpoint, CommStackStats, Reply, Steps
 from fake_marlin.host.gcode_file import read_job
-from fake_marlin.host.shell import ByteStream, Client, ClientOptions, LineCallback, PrintSummary, ProgressCallback
+from fake_marlin.host.shell import (
+    ByteStream,
+    Client,
+    ClientOptions,
+    LineCallback,
+    PrintSummary,
+    ProgressCallback,
+)
 from fake_marlin.wire.commstack import Task
 from fake_marlin.wire.gcode import strip_comment
 

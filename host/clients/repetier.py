@@ -4,10 +4,10 @@ the Repetier sender (fake_marlin.host.cores.repetier)."""
 
 import trio
 
-from fake_marlin.host.shell import ByteStream, ClientOptions, LineCallback, StreamingClient
 from fake_marlin.host.codecs import repetier
 from fake_marlin.host.cores.queue import Ticket
 from fake_marlin.host.cores.repetier import RepetierSender
+from fake_marlin.host.shell import ByteStream, ClientOptions, LineCallback, StreamingClient
 
 
 class RepetierClient(StreamingClient):

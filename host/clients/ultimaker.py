@@ -9,7 +9,6 @@ from fake_marlin.host.codecs.ultimaker import (
     Ack,
     CorruptFrame,
     FrameParser,
-    Line,
     LineKind,
     Reject,
     RoomInfo,

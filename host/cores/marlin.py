@@ -55,8 +55,8 @@ from dataclasses import dataclass
 from enum import Enum, auto
 
 from fake_marlin.host.codecs.marlin import PROBE, LineKind, Ok, encode_line, encode_sync
-from fake_marlin.host.errors import PrinterHalted, PrinterNotResponding, PrinterReset
 from fake_marlin.host.cores.queue import CommandQueue, Ticket, is_long_command
+from fake_marlin.host.errors import PrinterHalted, PrinterNotResponding, PrinterReset
 
 SYNC_COMMAND = "M110 N0"
 KEEPALIVE_INTERVAL = 2.0  # Marlin's DEFAULT_KEEPALIVE_INTERVAL; M113 changes it (up to 60 s)

@@ -5,7 +5,6 @@ import re
 from collections import deque
 from dataclasses import dataclass
 
-
 # Commands that keep the printer silent for long (OctoPrint's list, plus heat-and-wait).
 LONG_COMMANDS = frozenset(
     {"G4", "G28", "G29", "G30", "G32", "M109", "M190", "M191", "M226", "M303", "M400", "M600"}

@@ -41,8 +41,8 @@ from fake_marlin.host.codecs.repetier import (
     Skip,
     encode_command,
 )
-from fake_marlin.host.errors import PrinterHalted, PrinterNotResponding, PrinterReset
 from fake_marlin.host.cores.queue import CommandQueue, Ticket, is_long_command
+from fake_marlin.host.errors import PrinterHalted, PrinterNotResponding, PrinterReset
 from fake_marlin.wire import repetier
 
 RECEIVE_CACHE = 127  # Repetier-Host's receiveCacheSize

@@ -19,7 +19,6 @@ make a command run twice; these rules only decide how fast a loss is repaired:
 """
 
 import math
-from collections import deque
 from dataclasses import dataclass, field
 from enum import Enum, auto
 
