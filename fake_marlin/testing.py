@@ -9,12 +9,21 @@
         printer.control.inject(kind="thermal-runaway")
 
 With pytest the same comes as fixtures (`fake_printer`, `fake_printer_factory`; see
-fake_marlin.pytest_plugin). The printer runs as its own process, exactly the program users run,
+fake_marlin.pytest_plugin). For a trio host's own protocol tests there is also a printer in
+memory, in the test's own event loop, so that trio's autojump clock runs its simulated time:
+
+    async def test_my_host(autojump_clock):
+        async with memory_printer(protocol="marlin") as printer:
+            stream = printer.open()            # a trio byte stream, opened as a port is
+            await my_host.print(stream, job)   # minutes of printing in milliseconds
+            assert printer.journal == job
+ The printer runs as its own process, exactly the program users run,
 so it serves hosts in threads and in any event loop alike, and never competes with the test for
 the interpreter. A printer that crashes (or would not start) raises PrinterCrashed with what it
 printed on stderr.
 """
 
+import io
 import json
 import os
 import shutil
@@ -23,14 +32,32 @@ import subprocess
 import sys
 import tempfile
 import threading
-from collections.abc import Iterator, Mapping, Sequence
-from contextlib import contextmanager
+from collections.abc import AsyncIterator, Iterator, Mapping, Sequence
+from contextlib import asynccontextmanager, contextmanager
 from pathlib import Path
 from typing import TypedDict, Unpack
 
-from fake_marlin.emulator.control.client import ControlClient
+import trio
+import trio.testing
 
-__all__ = ["FakePrinter", "PrinterCrashed", "PrinterOptions", "running_printer", "start_printer"]
+from fake_marlin.emulator.control.client import ControlClient
+from fake_marlin.emulator.faults.layer import FaultConfig
+from fake_marlin.emulator.journal.writer import Journal
+from fake_marlin.emulator.link.memory import HostEnd, MemoryLink
+from fake_marlin.emulator.printer.model import DEFAULT_CAPABILITIES, Printer, PrinterConfig
+from fake_marlin.emulator.scenario.definition import PrinterSetup, add_fault_table, load
+from fake_marlin.emulator.server.lifecycle import PrinterServer, ServerConfig
+
+__all__ = [
+    "FakePrinter",
+    "MemoryPrinter",
+    "PrinterCrashed",
+    "PrinterOptions",
+    "memory_printer",
+    "running_printer",
+    "serve_in_memory",
+    "start_printer",
+]
 
 START_TIMEOUT = 30.0  # seconds for the program to print its pty path
 STOP_TIMEOUT = 10.0
@@ -275,3 +302,69 @@ def running_printer(**options: Unpack[PrinterOptions]) -> Iterator[FakePrinter]:
         printer.stop(check=False)
         raise
     printer.stop()
+
+
+# -- a printer in memory, in the test's own trio run -----------------------------------------
+class MemoryPrinter:
+    """A printer on an in-memory link: `open()` is a host opening the port (the printer resets,
+    as on a real board) and gives a trio byte stream; `journal` as FakePrinter's; `server` is
+    the printer itself (its model, boots and protocol), for tests that look inside."""
+
+    def __init__(self, link: MemoryLink, server: PrinterServer, journal_text: io.StringIO) -> None:
+        self.link = link
+        self.server = server
+        self._journal_text = journal_text
+
+    def open(self) -> HostEnd:
+        return self.link.open_host()
+
+    @property
+    def journal(self) -> list[str]:
+        return self._journal_text.getvalue().splitlines()
+
+
+@asynccontextmanager
+async def serve_in_memory(config: ServerConfig, printer: Printer) -> AsyncIterator[MemoryPrinter]:
+    """`printer` served with `config` on an in-memory link, for the length of the block."""
+    link = MemoryLink()
+    journal_text = io.StringIO()
+    server = PrinterServer(link, printer, Journal(journal_text), config)
+    async with trio.open_nursery() as nursery:
+        await nursery.start(server.run)
+        # Power-on completes before any host opens the port, as on a real desk.
+        await trio.testing.wait_all_tasks_blocked()
+        yield MemoryPrinter(link, server, journal_text)
+        nursery.cancel_scope.cancel()
+
+
+_NOT_IN_MEMORY = ("speed", "link", "extra_args")  # trio's clock runs it; it has no pty
+
+
+@asynccontextmanager
+async def memory_printer(**options: Unpack[PrinterOptions]) -> AsyncIterator[MemoryPrinter]:
+    """A printer in memory with these options (PrinterOptions, less speed, link, extra_args)."""
+    unknown = (set(options) - set(PrinterOptions.__annotations__)) | (set(options) & set(_NOT_IN_MEMORY))
+    if unknown:
+        raise TypeError(f"not options of a printer in memory: {', '.join(sorted(unknown))}")
+    baud = options.get("baud")
+    setup = PrinterSetup(
+        protocol=options.get("protocol", "auto"), extruders=options.get("extruders", 1),
+        baud=None if baud is True or not baud else int(baud), baud_from_host=baud is True,
+        latency=options.get("latency_ms", 0.0) / 1000, jitter=options.get("jitter_ms", 0.0) / 1000,
+        boot_delay=options.get("boot_delay", 0.0), advanced_ok=options.get("advanced_ok", False),
+    )
+    faults = FaultConfig(seed=options.get("seed", 0))
+    if "scenario" in options:
+        scenario = load(options["scenario"])
+        setup, faults = scenario.printer, scenario.faults
+    for number, table in enumerate(options.get("faults", ()), start=1):
+        faults = add_fault_table(faults, dict(table), f"faults #{number}")
+    capabilities = dict(DEFAULT_CAPABILITIES)
+    capabilities.update(options.get("capabilities", {}))
+    with tempfile.TemporaryDirectory(prefix="fake-marlin-sd-") as scratch:
+        config = PrinterConfig(
+            extruders=setup.extruders, sd_dir=Path(options.get("sd_dir", scratch)),
+            capabilities=tuple(capabilities.items()),
+        )
+        async with serve_in_memory(setup.server_config(faults), Printer(config)) as printer:
+            yield printer

@@ -20,7 +20,7 @@ from fake_marlin.emulator.printer.model import DEFAULT_CAPABILITIES, Printer, Pr
 from fake_marlin.emulator.scenario.definition import PrinterSetup, ScenarioError, add_fault_table
 from fake_marlin.emulator.scenario.definition import load as load_scenario
 from fake_marlin.emulator.server.clock import ScaledClock
-from fake_marlin.emulator.server.lifecycle import PROTOCOLS, PrinterServer, ServerConfig
+from fake_marlin.emulator.server.lifecycle import PROTOCOLS, PrinterServer
 
 
 def _positive_float(text: str) -> float:
@@ -248,15 +248,7 @@ def main(argv: list[str] | None = None) -> int:
             config = PrinterConfig(
                 extruders=setup.extruders, sd_dir=sd_dir, capabilities=tuple(capabilities.items())
             )
-            server_config = ServerConfig(
-                protocol=setup.protocol,
-                boot_delay=setup.boot_delay,
-                advanced_ok=setup.advanced_ok,
-                faults=faults,
-                conditions=setup.conditions,
-                baud_from_host=setup.baud_from_host,
-            )
-            server = PrinterServer(link, Printer(config), journal, server_config)
+            server = PrinterServer(link, Printer(config), journal, setup.server_config(faults))
             trio.run(
                 _serve_until_signalled, server, link.path, args.control, clock=ScaledClock(args.speed)
             )

@@ -12,6 +12,7 @@ from pathlib import Path
 from fake_marlin.emulator.faults.layer import RATE_KINDS, FaultConfig, with_rate
 from fake_marlin.emulator.faults.rules import LINK_KINDS, FaultKind, FaultRule, Trigger
 from fake_marlin.emulator.link.conditions import LinkConditions
+from fake_marlin.emulator.server.lifecycle import ServerConfig
 
 DIRECTIONS = ("to-printer", "to-host")
 PROTOCOLS = ("auto", "marlin", "ultimaker", "repetier", "commstack")
@@ -38,6 +39,13 @@ class PrinterSetup:
     @property
     def conditions(self) -> LinkConditions:
         return LinkConditions(self.baud, self.latency, self.jitter)
+
+    def server_config(self, faults: FaultConfig) -> ServerConfig:
+        """The printer server's settings: these, with these faults."""
+        return ServerConfig(
+            protocol=self.protocol, boot_delay=self.boot_delay, advanced_ok=self.advanced_ok,
+            faults=faults, conditions=self.conditions, baud_from_host=self.baud_from_host,
+        )
 
 
 @dataclass(frozen=True)

@@ -17,7 +17,7 @@ from fake_marlin.emulator.journal.writer import Journal
 from fake_marlin.emulator.link.memory import MemoryLink
 from fake_marlin.emulator.printer.model import Printer, PrinterConfig
 from fake_marlin.emulator.scenario.definition import Scenario
-from fake_marlin.emulator.server.lifecycle import PrinterServer, ServerConfig
+from fake_marlin.emulator.server.lifecycle import PrinterServer
 from fake_marlin.host.connect import connect
 from fake_marlin.host.errors import ConnectionLost, HostError
 from fake_marlin.host.shell import ClientOptions, PrintSummary, StreamingClient, sole_exception
@@ -80,10 +80,7 @@ async def _run(scenario: Scenario, sd_dir: Path) -> ScenarioResult:
     printer = Printer(PrinterConfig(extruders=setup.extruders, sd_dir=sd_dir))
     journal_text = io.StringIO()
     link = MemoryLink()
-    server = PrinterServer(link, printer, Journal(journal_text), ServerConfig(
-        protocol=setup.protocol, boot_delay=setup.boot_delay, advanced_ok=setup.advanced_ok,
-        faults=scenario.faults, conditions=setup.conditions, baud_from_host=setup.baud_from_host,
-    ))
+    server = PrinterServer(link, printer, Journal(journal_text), setup.server_config(scenario.faults))
     options = ClientOptions(
         window=scenario.host.window, timeout=scenario.host.timeout,
         max_transmissions=scenario.host.retries,
