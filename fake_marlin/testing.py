@@ -77,8 +77,12 @@ class FakePrinter:
     `stop(check=False)` acknowledges it (then `journal` is what it had executed)."""
 
     def __init__(
-        self, args: Sequence[str], directory: Path, keep_directory: bool,
-        program: Sequence[str] | None = None, link: Path | None = None,
+        self,
+        args: Sequence[str],
+        directory: Path,
+        keep_directory: bool,
+        program: Sequence[str] | None = None,
+        link: Path | None = None,
     ) -> None:
         self.directory = directory
         self.link = link  # the symlink to the pty, if one was asked for
@@ -92,7 +96,11 @@ class FakePrinter:
         self.returncode: int | None = None
         command = [
             *(program or DEFAULT_PROGRAM),
-            "--journal", str(self._journal_path), "--control", str(self._control_path), *args,
+            "--journal",
+            str(self._journal_path),
+            "--control",
+            str(self._control_path),
+            *args,
         ]
         self.args = tuple(command)
         with open(self._stderr_path, "wb") as stderr:
@@ -105,7 +113,9 @@ class FakePrinter:
         threading.Thread(target=self._read_paths, name="fake-printer-stdout", daemon=True).start()
         if not self._wait_for(1, START_TIMEOUT):
             self.stop(check=False)
-            raise PrinterCrashed(f"fake-marlin did not start ({' '.join(self.args)}):\n{self.stderr}")
+            raise PrinterCrashed(
+                f"fake-marlin did not start ({' '.join(self.args)}):\n{self.stderr}"
+            )
 
     def _read_paths(self) -> None:
         assert self.process.stdout is not None
@@ -119,7 +129,9 @@ class FakePrinter:
 
     def _wait_for(self, number: int, timeout: float) -> bool:
         with self._announced:
-            self._announced.wait_for(lambda: len(self.ports) >= number or self._stdout_closed, timeout)
+            self._announced.wait_for(
+                lambda: len(self.ports) >= number or self._stdout_closed, timeout
+            )
             return len(self.ports) >= number
 
     # -- what a test reads ----------------------------------------------------------------
@@ -133,7 +145,9 @@ class FakePrinter:
         `disconnect` fault's line comes back announced anew, perhaps under the same name."""
         if not self._wait_for(number, timeout):
             self._check_alive()
-            raise TimeoutError(f"the printer announced {len(self.ports)} ports in {timeout} s, not {number}")
+            raise TimeoutError(
+                f"the printer announced {len(self.ports)} ports in {timeout} s, not {number}"
+            )
         return self.ports[number - 1]
 
     @property
@@ -197,7 +211,9 @@ class FakePrinter:
             self.process.kill()
             self.returncode = self.process.wait()
             if check:
-                raise PrinterCrashed(f"the printer did not stop within {STOP_TIMEOUT} s:\n{self.stderr}")
+                raise PrinterCrashed(
+                    f"the printer did not stop within {STOP_TIMEOUT} s:\n{self.stderr}"
+                )
         report = self._crash_report()
         failed = died_on_its_own or self.returncode != 0 or "Traceback" in self.stderr
         self._final = (self.stderr, self._read_journal())
@@ -213,7 +229,8 @@ class FakePrinter:
         self.stop(check=exc[0] is None)
 
     def __repr__(self) -> str:
-        return f"<FakePrinter {self.ports[-1] if self.ports else None} {'running' if self.alive else 'stopped'}>"
+        port = self.ports[-1] if self.ports else None
+        return f"<FakePrinter {port} {'running' if self.alive else 'stopped'}>"
 
 
 class PrinterOptions(TypedDict, total=False):
@@ -246,9 +263,19 @@ def command_line(options: PrinterOptions) -> list[str]:
         raise TypeError(f"unknown printer options: {', '.join(sorted(unknown))}")
     taken = [arg for arg in options.get("extra_args", ()) if arg.split("=")[0] in OWN_FLAGS]
     if taken:
-        raise ValueError(f"extra_args cannot set {', '.join(taken)}: the printer's .journal and .control use them")
-    args = ["--protocol", options.get("protocol", "auto"), "--speed", repr(float(options.get("speed", 1.0))),
-            "--extruders", str(options.get("extruders", 1)), "--seed", str(options.get("seed", 0))]
+        raise ValueError(
+            f"extra_args cannot set {', '.join(taken)}: .journal and .control rely on them"
+        )
+    args = [
+        "--protocol",
+        options.get("protocol", "auto"),
+        "--speed",
+        repr(float(options.get("speed", 1.0))),
+        "--extruders",
+        str(options.get("extruders", 1)),
+        "--seed",
+        str(options.get("seed", 0)),
+    ]
     if "sd_dir" in options:
         args += ["--sd-dir", os.fspath(options["sd_dir"])]
     if options.get("advanced_ok"):
@@ -258,8 +285,11 @@ def command_line(options: PrinterOptions) -> list[str]:
         args.append("--baud")
     elif baud:
         args += ["--baud", str(int(baud))]
-    delays = {"--latency-ms": options.get("latency_ms"), "--jitter-ms": options.get("jitter_ms"),
-              "--boot-delay": options.get("boot_delay")}
+    delays = {
+        "--latency-ms": options.get("latency_ms"),
+        "--jitter-ms": options.get("jitter_ms"),
+        "--boot-delay": options.get("boot_delay"),
+    }
     for flag, value in delays.items():
         if value:
             args += [flag, repr(float(value))]
@@ -275,7 +305,8 @@ def command_line(options: PrinterOptions) -> list[str]:
 
 
 def start_printer(
-    keep_directory: bool = False, program: Sequence[str] | None = None,
+    keep_directory: bool = False,
+    program: Sequence[str] | None = None,
     **options: Unpack[PrinterOptions],
 ) -> FakePrinter:
     """Start a printer; stop it with `stop()`. `program` is the command that runs fake-marlin
@@ -289,7 +320,9 @@ def start_printer(
         (directory / "sd").mkdir()
         args += ["--sd-dir", str(directory / "sd")]
     link = options.get("link")
-    return FakePrinter(args, directory, keep_directory, program, None if link is None else Path(link))
+    return FakePrinter(
+        args, directory, keep_directory, program, None if link is None else Path(link)
+    )
 
 
 @contextmanager
@@ -343,15 +376,21 @@ _NOT_IN_MEMORY = ("speed", "link", "extra_args")  # trio's clock runs it; it has
 @asynccontextmanager
 async def memory_printer(**options: Unpack[PrinterOptions]) -> AsyncIterator[MemoryPrinter]:
     """A printer in memory with these options (PrinterOptions, less speed, link, extra_args)."""
-    unknown = (set(options) - set(PrinterOptions.__annotations__)) | (set(options) & set(_NOT_IN_MEMORY))
+    unknown = (set(options) - set(PrinterOptions.__annotations__)) | (
+        set(options) & set(_NOT_IN_MEMORY)
+    )
     if unknown:
         raise TypeError(f"not options of a printer in memory: {', '.join(sorted(unknown))}")
     baud = options.get("baud")
     setup = PrinterSetup(
-        protocol=options.get("protocol", "auto"), extruders=options.get("extruders", 1),
-        baud=None if baud is True or not baud else int(baud), baud_from_host=baud is True,
-        latency=options.get("latency_ms", 0.0) / 1000, jitter=options.get("jitter_ms", 0.0) / 1000,
-        boot_delay=options.get("boot_delay", 0.0), advanced_ok=options.get("advanced_ok", False),
+        protocol=options.get("protocol", "auto"),
+        extruders=options.get("extruders", 1),
+        baud=None if baud is True or not baud else int(baud),
+        baud_from_host=baud is True,
+        latency=options.get("latency_ms", 0.0) / 1000,
+        jitter=options.get("jitter_ms", 0.0) / 1000,
+        boot_delay=options.get("boot_delay", 0.0),
+        advanced_ok=options.get("advanced_ok", False),
     )
     faults = FaultConfig(seed=options.get("seed", 0))
     if "scenario" in options:
@@ -363,7 +402,8 @@ async def memory_printer(**options: Unpack[PrinterOptions]) -> AsyncIterator[Mem
     capabilities.update(options.get("capabilities", {}))
     with tempfile.TemporaryDirectory(prefix="fake-marlin-sd-") as scratch:
         config = PrinterConfig(
-            extruders=setup.extruders, sd_dir=Path(options.get("sd_dir", scratch)),
+            extruders=setup.extruders,
+            sd_dir=Path(options.get("sd_dir", scratch)),
             capabilities=tuple(capabilities.items()),
         )
         async with serve_in_memory(setup.server_config(faults), Printer(config)) as printer:

@@ -97,7 +97,9 @@ class Client(ABC):
         """Raise CommandError if `command` cannot be sent in this protocol."""
         return ultimaker.check_command(command)
 
-    def __init__(self, stream: ByteStream, options: ClientOptions, on_line: LineCallback | None) -> None:
+    def __init__(
+        self, stream: ByteStream, options: ClientOptions, on_line: LineCallback | None
+    ) -> None:
         self._stream = stream
         self.options = options
         self._on_line: LineCallback = on_line or (lambda line: None)
@@ -129,7 +131,9 @@ class Client(ABC):
             nursery.start_soon(self._guard, self._read_loop, cancel_scope)
             nursery.start_soon(self._guard, self._send_loop, cancel_scope)
 
-    async def _guard(self, loop: Callable[[], Awaitable[None]], cancel_scope: trio.CancelScope) -> None:
+    async def _guard(
+        self, loop: Callable[[], Awaitable[None]], cancel_scope: trio.CancelScope
+    ) -> None:
         try:
             await loop()
         except HostError as error:
@@ -163,11 +167,16 @@ class Client(ABC):
         while not condition():
             await self._changed.wait()
 
-    def _summary(self, before: dict[str, int], corrupt_before: int, commands: int, start: float) -> PrintSummary:
+    def _summary(
+        self, before: dict[str, int], corrupt_before: int, commands: int, start: float
+    ) -> PrintSummary:
         after = asdict(self.stats)  # type: ignore[call-overload]  # each core's stats is a dataclass
         return PrintSummary(
             commands=commands,
-            **{key: after[key] - before[key] for key in ("packets_sent", "resends", "timeouts", "rejects", "unconfirmed")},
+            **{
+                key: after[key] - before[key]
+                for key in ("packets_sent", "resends", "timeouts", "rejects", "unconfirmed")
+            },
             corrupt_frames=self.corrupt_frames - corrupt_before,
             elapsed=trio.current_time() - start,
         )
@@ -185,7 +194,9 @@ class Client(ABC):
 
     async def print_file(self, path: str, progress: ProgressCallback | None = None) -> PrintSummary:
         """Print a G-code file (comments and blank lines stripped, every line checked first)."""
-        return await self.print_commands([c.text for c in checked_job(path, self.check_command)], progress)
+        return await self.print_commands(
+            [c.text for c in checked_job(path, self.check_command)], progress
+        )
 
 
 class StreamingClient(Client):
@@ -193,7 +204,9 @@ class StreamingClient(Client):
 
     _core: QueueCore
 
-    def __init__(self, stream: ByteStream, options: ClientOptions, on_line: LineCallback | None) -> None:
+    def __init__(
+        self, stream: ByteStream, options: ClientOptions, on_line: LineCallback | None
+    ) -> None:
         super().__init__(stream, options, on_line)
         self._on_complete: ProgressCallback = lambda count: None
 

@@ -91,7 +91,9 @@ def test_a_clean_upload_is_open_size_chunks_close():
     printer = MK20()
     upload(printer)
     chunks = -(-len(CONTENT) // CHUNK_SIZE)
-    assert tasks(printer) == [Task.FILE_OPEN_FOR_WRITE, Task.FILE_SET_SIZE] + [Task.FILE_SAVE_DATA] * chunks + [Task.FILE_CLOSE]
+    assert tasks(printer) == [Task.FILE_OPEN_FOR_WRITE, Task.FILE_SET_SIZE] + [
+        Task.FILE_SAVE_DATA
+    ] * chunks + [Task.FILE_CLOSE]
     assert bytes(printer.file) == CONTENT
 
 
@@ -101,7 +103,7 @@ def test_a_chunk_stored_whose_answer_is_lost_is_not_sent_again():
     assert bytes(printer.file) == CONTENT
     # After the silence the host asks the length (an empty FileSaveData) and moves on.
     assert printer.requests[4] == Request(Task.FILE_SAVE_DATA, b"")
-    assert printer.requests[5].data == CONTENT[2 * CHUNK_SIZE:3 * CHUNK_SIZE]
+    assert printer.requests[5].data == CONTENT[2 * CHUNK_SIZE : 3 * CHUNK_SIZE]
 
 
 def test_a_refused_chunk_is_sent_again_once_the_length_shows_it_missing():

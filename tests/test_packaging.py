@@ -15,7 +15,8 @@ def wheel(tmp_path_factory: pytest.TempPathFactory) -> Path:
     out = tmp_path_factory.mktemp("wheel")
     subprocess.run(
         [sys.executable, "-m", "pip", "wheel", "--no-deps", "-q", "-w", str(out), str(ROOT)],
-        check=True, capture_output=True,
+        check=True,
+        capture_output=True,
     )
     (found,) = out.glob("fake_marlin-*.whl")
     return found
@@ -36,7 +37,9 @@ def test_the_wheel_installs_one_top_level_package_and_marks_it_typed(wheel: Path
     assert "fake-marlin = fake_marlin.emulator.cli.main:main" in points
 
 
-def test_from_the_wheel_fake_marlin_imports_and_emulator_host_wire_do_not(wheel: Path, tmp_path: Path) -> None:
+def test_from_the_wheel_fake_marlin_imports_and_emulator_host_wire_do_not(
+    wheel: Path, tmp_path: Path
+) -> None:
     unpacked = tmp_path / "site"
     with zipfile.ZipFile(wheel) as archive:
         archive.extractall(unpacked)
@@ -56,7 +59,9 @@ for name in ("emulator", "host", "wire"):
         raise SystemExit(f"import {{name}} worked")
 print(fake_marlin.__version__)
 """
-    result = subprocess.run([sys.executable, "-c", check], cwd=tmp_path, capture_output=True, text=True)
+    result = subprocess.run(
+        [sys.executable, "-c", check], cwd=tmp_path, capture_output=True, text=True
+    )
     assert result.returncode == 0, result.stderr
     import fake_marlin
 
@@ -67,6 +72,8 @@ def test_both_programs_say_their_version() -> None:
     import fake_marlin
 
     for program in ("fake_marlin.emulator.cli", "fake_marlin.host.cli"):
-        result = subprocess.run([sys.executable, "-m", program, "--version"], capture_output=True, text=True)
+        result = subprocess.run(
+            [sys.executable, "-m", program, "--version"], capture_output=True, text=True
+        )
         assert result.returncode == 0
         assert result.stdout.strip().endswith(f" {fake_marlin.__version__}")

@@ -34,9 +34,20 @@ def lay_out(where: Path) -> Path:
 def run(check: str, where: Path) -> subprocess.CompletedProcess[str]:
     environment = {**os.environ, "MYPYPATH": str(where)}
     return subprocess.run(
-        [sys.executable, "-m", "mypy", "--config-file", str(ROOT / "pyproject.toml"),
-         "--cache-dir", str(where / ".mypy_cache"), *CHECKS[check]],
-        capture_output=True, text=True, env=environment, cwd=where,
+        [
+            sys.executable,
+            "-m",
+            "mypy",
+            "--config-file",
+            str(ROOT / "pyproject.toml"),
+            "--cache-dir",
+            str(where / ".mypy_cache"),
+            *CHECKS[check],
+        ],
+        capture_output=True,
+        text=True,
+        env=environment,
+        cwd=where,
     )
 
 
@@ -46,7 +57,10 @@ def main() -> int:
         where = lay_out(Path(scratch))
         for check in CHECKS:
             result = run(check, where)
-            print(f"== mypy {check}: {' '.join(CHECKS[check])}\n{result.stdout}{result.stderr}", end="")
+            print(
+                f"== mypy {check}: {' '.join(CHECKS[check])}\n{result.stdout}{result.stderr}",
+                end="",
+            )
             failed |= result.returncode != 0
     return failed
 

@@ -41,7 +41,9 @@ class CommStackClient(Client):
     check_command = staticmethod(commstack.check_command)
 
     def __init__(
-        self, stream: ByteStream, options: ClientOptions = ClientOptions(),
+        self,
+        stream: ByteStream,
+        options: ClientOptions = ClientOptions(),
         on_line: LineCallback | None = None,
     ) -> None:
         super().__init__(stream, options, on_line)
@@ -81,14 +83,18 @@ class CommStackClient(Client):
 
     # -- the library API -----------------------------------------------------------------
     async def ping(self) -> int:
-        answer = await self._run(commstack.request(Task.PING, struct.pack("<i", 1), self.options.max_transmissions))
+        answer = await self._run(
+            commstack.request(Task.PING, struct.pack("<i", 1), self.options.max_transmissions)
+        )
         return int(struct.unpack("<i", answer[:4].ljust(4, b"\0"))[0])
 
     async def send(self, command: str) -> tuple[str, ...]:
         """Run one command through RunPrinterGCode; returns what it printed."""
         return await self._run(commstack.run_gcode(command, self.options.max_transmissions))
 
-    async def upload(self, name: str, content: bytes, progress: ProgressCallback | None = None) -> None:
+    async def upload(
+        self, name: str, content: bytes, progress: ProgressCallback | None = None
+    ) -> None:
         """Store `content` on the SD card as `name`, exactly."""
         await self._run(commstack.upload(name, content, self.options.max_transmissions, progress))
 
@@ -120,7 +126,9 @@ class CommStackClient(Client):
         content = "".join(command + "\n" for command in commands).encode("ascii")
         return await self._print("job.gcode", content, len(commands), progress)
 
-    async def _print(self, name: str, content: bytes, count: int, progress: ProgressCallback | None) -> PrintSummary:
+    async def _print(
+        self, name: str, content: bytes, count: int, progress: ProgressCallback | None
+    ) -> PrintSummary:
         start = trio.current_time()
         before = self.stats.__dict__.copy()
         corrupt_before = self.corrupt_frames

@@ -1,7 +1,6 @@
 """The trio client for Marlin's ASCII protocol: the shared shell around the line sender
 (fake_marlin.host.cores.marlin)."""
 
-
 import trio
 
 from fake_marlin.host.codecs import marlin

@@ -1,7 +1,6 @@
 """The trio client for Repetier-Firmware: the shared shell (fake_marlin.host.shell) around
 the Repetier sender (fake_marlin.host.cores.repetier)."""
 
-
 import trio
 
 from fake_marlin.host.codecs import repetier

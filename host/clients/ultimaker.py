@@ -1,13 +1,13 @@
 """The trio client for Ultimaker's binary protocol: the shared shell around the go-back-N window
 (fake_marlin.host.cores.ultimaker)."""
 
-
 import trio
 
 from fake_marlin.host.codecs import marlin
 from fake_marlin.host.codecs.ultimaker import (
     Ack,
     CorruptFrame,
+    Event,
     FrameParser,
     LineKind,
     Reject,
@@ -44,7 +44,7 @@ class UltimakerClient(StreamingClient):
         while (event := self._parser.next_event()) is not None:
             self._handle(event)
 
-    def _handle(self, event) -> None:
+    def _handle(self, event: Event) -> None:
         now = trio.current_time()
         if isinstance(event, Ack):
             done = self._window.on_ack(event.seq, event.room, tuple(self._response), now)
