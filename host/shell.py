@@ -98,7 +98,10 @@ class Client(ABC):
         return ultimaker.check_command(command)
 
     def __init__(
-        self, stream: ByteStream, options: ClientOptions, on_line: LineCallback | None
+        self,
+        stream: ByteStream,
+        options: ClientOptions = ClientOptions(),
+        on_line: LineCallback | None = None,
     ) -> None:
         self._stream = stream
         self.options = options
@@ -110,7 +113,13 @@ class Client(ABC):
         self.room: int | None = None  # the printer's planner room, where it says
         self.corrupt_frames = 0
         self.completed = 0
+        self._on_complete: ProgressCallback = lambda count: None  # told of each completion
         self.failure: HostError | None = None
+        self._open(options)
+
+    @abstractmethod
+    def _open(self, options: ClientOptions) -> None:
+        """Make the protocol's parser and core (once, as the client is made)."""
 
     @property
     @abstractmethod
@@ -203,12 +212,6 @@ class StreamingClient(Client):
     """A client whose core is a CommandQueue: commands are submitted, streamed and completed."""
 
     _core: QueueCore
-
-    def __init__(
-        self, stream: ByteStream, options: ClientOptions, on_line: LineCallback | None
-    ) -> None:
-        super().__init__(stream, options, on_line)
-        self._on_complete: ProgressCallback = lambda count: None
 
     @property
     def stats(self) -> Stats:

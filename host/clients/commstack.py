@@ -20,10 +20,8 @@ from fake_marlin.host.cores import commstack
 from fake_marlin.host.cores.commstack import CommStackEndpoint, CommStackStats, Reply, Steps
 from fake_marlin.host.gcode_file import read_job
 from fake_marlin.host.shell import (
-    ByteStream,
     Client,
     ClientOptions,
-    LineCallback,
     PrintSummary,
     ProgressCallback,
 )
@@ -40,13 +38,7 @@ class CommStackClient(Client):
     waits_for_greeting = False  # the MK20 greets nobody; the ESP starts asking at once
     check_command = staticmethod(commstack.check_command)
 
-    def __init__(
-        self,
-        stream: ByteStream,
-        options: ClientOptions = ClientOptions(),
-        on_line: LineCallback | None = None,
-    ) -> None:
-        super().__init__(stream, options, on_line)
+    def _open(self, options: ClientOptions) -> None:
         self._endpoint = CommStackEndpoint(options.timeout)
 
     @property

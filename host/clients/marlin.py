@@ -5,7 +5,7 @@ import trio
 
 from fake_marlin.host.codecs import marlin
 from fake_marlin.host.cores.marlin import MarlinSender
-from fake_marlin.host.shell import ByteStream, ClientOptions, LineCallback, StreamingClient
+from fake_marlin.host.shell import ClientOptions, StreamingClient
 
 
 class MarlinClient(StreamingClient):
@@ -14,13 +14,7 @@ class MarlinClient(StreamingClient):
     protocol = "marlin"
     check_command = staticmethod(marlin.check_command)
 
-    def __init__(
-        self,
-        stream: ByteStream,
-        options: ClientOptions = ClientOptions(),
-        on_line: LineCallback | None = None,
-    ) -> None:
-        super().__init__(stream, options, on_line)
+    def _open(self, options: ClientOptions) -> None:
         self._parser = marlin.LineParser()
         self._core = self._sender = MarlinSender(
             timeout=options.timeout,

@@ -6,7 +6,7 @@ import trio
 from fake_marlin.host.codecs import repetier
 from fake_marlin.host.cores.queue import Ticket
 from fake_marlin.host.cores.repetier import RepetierSender
-from fake_marlin.host.shell import ByteStream, ClientOptions, LineCallback, StreamingClient
+from fake_marlin.host.shell import ClientOptions, StreamingClient
 
 
 class RepetierClient(StreamingClient):
@@ -15,13 +15,7 @@ class RepetierClient(StreamingClient):
     protocol = "repetier"
     check_command = staticmethod(repetier.check_command)
 
-    def __init__(
-        self,
-        stream: ByteStream,
-        options: ClientOptions = ClientOptions(),
-        on_line: LineCallback | None = None,
-    ) -> None:
-        super().__init__(stream, options, on_line)
+    def _open(self, options: ClientOptions) -> None:
         self._parser = repetier.LineParser()
         self._core = self._sender = RepetierSender(
             timeout=options.timeout,

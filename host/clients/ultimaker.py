@@ -16,19 +16,13 @@ from fake_marlin.host.codecs.ultimaker import (
 )
 from fake_marlin.host.cores.ultimaker import GoBackNWindow
 from fake_marlin.host.errors import PrinterHalted
-from fake_marlin.host.shell import ByteStream, ClientOptions, LineCallback, StreamingClient
+from fake_marlin.host.shell import ClientOptions, StreamingClient
 
 
 class UltimakerClient(StreamingClient):
     protocol = "ultimaker"
 
-    def __init__(
-        self,
-        stream: ByteStream,
-        options: ClientOptions = ClientOptions(),
-        on_line: LineCallback | None = None,
-    ) -> None:
-        super().__init__(stream, options, on_line)
+    def _open(self, options: ClientOptions) -> None:
         self._parser = FrameParser()
         self._core = self._window = GoBackNWindow(
             window=options.window,
