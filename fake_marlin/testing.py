@@ -9,18 +9,19 @@
         printer.control.inject(kind="thermal-runaway")
 
 With pytest the same comes as fixtures (`fake_printer`, `fake_printer_factory`; see
-fake_marlin.pytest_plugin). For a trio host's own protocol tests there is also a printer in
-memory, in the test's own event loop, so that trio's autojump clock runs its simulated time:
+fake_marlin.pytest_plugin). The printer runs as its own process, exactly the program users run,
+so it serves hosts in threads and in any event loop alike, and never competes with the test for
+the interpreter. A printer that crashes (or would not start) raises PrinterCrashed with what it
+printed on stderr.
+
+For a trio host's own protocol tests there is also a printer in memory, in the test's own event
+loop, so that trio's autojump clock runs its simulated time:
 
     async def test_my_host(autojump_clock):
         async with memory_printer(protocol="marlin") as printer:
             stream = printer.open()            # a trio byte stream, opened as a port is
             await my_host.print(stream, job)   # minutes of printing in milliseconds
             assert printer.journal == job
- The printer runs as its own process, exactly the program users run,
-so it serves hosts in threads and in any event loop alike, and never competes with the test for
-the interpreter. A printer that crashes (or would not start) raises PrinterCrashed with what it
-printed on stderr.
 """
 
 import io
