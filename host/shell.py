@@ -12,7 +12,7 @@ import math
 from abc import ABC, abstractmethod
 from collections.abc import Awaitable, Callable, Iterable
 from dataclasses import asdict, dataclass
-from typing import ClassVar, Protocol
+from typing import Any, ClassVar, Protocol
 
 import trio
 
@@ -33,8 +33,9 @@ class ByteStream(Protocol):
 
 
 class Stats(Protocol):
-    """What every core counts (each core's stats dataclass has these and may have more)."""
+    """What every core counts: a dataclass with these fields, and perhaps more."""
 
+    __dataclass_fields__: ClassVar[dict[str, Any]]
     packets_sent: int
     resends: int
     timeouts: int
@@ -84,6 +85,16 @@ class ClientOptions:
     settle: float = 0.5  # how long to wait for the printer's boot message before sending
 
 
+_COUNTED = ("packets_sent", "resends", "timeouts", "rejects", "unconfirmed")  # summed per job
+
+
+@dataclass(frozen=True)
+class _Snapshot:
+    stats: dict[str, int]
+    corrupt_frames: int
+    time: float
+
+
 class Client(ABC):
     """A printer on a byte stream. A protocol's client implements `_feed` (bytes from the
     printer), `_poll` (bytes to write now) and `_next_deadline` (when to poll unasked)."""
@@ -93,9 +104,9 @@ class Client(ABC):
     waits_for_greeting: ClassVar[bool] = True
 
     @staticmethod
+    @abstractmethod
     def check_command(command: str) -> object:
         """Raise CommandError if `command` cannot be sent in this protocol."""
-        return ultimaker.check_command(command)
 
     def __init__(
         self,
@@ -176,18 +187,17 @@ class Client(ABC):
         while not condition():
             await self._changed.wait()
 
-    def _summary(
-        self, before: dict[str, int], corrupt_before: int, commands: int, start: float
-    ) -> PrintSummary:
-        after = asdict(self.stats)  # type: ignore[call-overload]  # each core's stats is a dataclass
+    def _snapshot(self) -> _Snapshot:
+        return _Snapshot(asdict(self.stats), self.corrupt_frames, trio.current_time())
+
+    def _summary(self, since: _Snapshot, commands: int) -> PrintSummary:
+        """What printing `commands` cost since the snapshot."""
+        now = asdict(self.stats)
         return PrintSummary(
             commands=commands,
-            **{
-                key: after[key] - before[key]
-                for key in ("packets_sent", "resends", "timeouts", "rejects", "unconfirmed")
-            },
-            corrupt_frames=self.corrupt_frames - corrupt_before,
-            elapsed=trio.current_time() - start,
+            **{key: now[key] - since.stats[key] for key in _COUNTED},
+            corrupt_frames=self.corrupt_frames - since.corrupt_frames,
+            elapsed=trio.current_time() - since.time,
         )
 
     # -- the library API ----------------------------------------------------------------
@@ -247,9 +257,7 @@ class StreamingClient(Client):
     async def print_commands(
         self, commands: Iterable[str], progress: ProgressCallback | None = None
     ) -> PrintSummary:
-        start = trio.current_time()
-        before = asdict(self.stats)  # type: ignore[call-overload]  # each core's stats is a dataclass
-        corrupt_before, completed_before = self.corrupt_frames, self.completed
+        since, completed_before = self._snapshot(), self.completed
         if progress is not None:
             self._on_complete = lambda count: progress(self.completed - completed_before)
         try:
@@ -258,7 +266,7 @@ class StreamingClient(Client):
             await self.wait_idle()
         finally:
             self._on_complete = lambda count: None
-        return self._summary(before, corrupt_before, self.completed - completed_before, start)
+        return self._summary(since, self.completed - completed_before)
 
 
 def sole_exception(error: BaseException) -> BaseException:

@@ -121,9 +121,7 @@ class CommStackClient(Client):
     async def _print(
         self, name: str, content: bytes, count: int, progress: ProgressCallback | None
     ) -> PrintSummary:
-        start = trio.current_time()
-        before = self.stats.__dict__.copy()
-        corrupt_before = self.corrupt_frames
+        since = self._snapshot()
         await self.upload(name, content)
         await self.start_print(name)
         ends = _command_ends(content)
@@ -136,7 +134,7 @@ class CommStackClient(Client):
         self.completed += count
         if progress is not None:
             progress(count)
-        return self._summary(before, corrupt_before, count, start)
+        return self._summary(since, count)
 
 
 def _command_ends(content: bytes) -> list[int]:

@@ -12,6 +12,7 @@ from fake_marlin.host.codecs.ultimaker import (
     LineKind,
     Reject,
     RoomInfo,
+    check_command,
     encode_command,
 )
 from fake_marlin.host.cores.ultimaker import GoBackNWindow
@@ -21,6 +22,7 @@ from fake_marlin.host.shell import ClientOptions, StreamingClient
 
 class UltimakerClient(StreamingClient):
     protocol = "ultimaker"
+    check_command = staticmethod(check_command)
 
     def _open(self, options: ClientOptions) -> None:
         self._parser = FrameParser()
