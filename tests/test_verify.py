@@ -18,6 +18,7 @@ from fake_marlin.emulator.cli.verify import report
 from fake_marlin.emulator.journal.verify import Kind, job_commands, verify
 
 MISSING, DUPLICATED, REORDERED, EXTRA = Kind.MISSING, Kind.DUPLICATED, Kind.REORDERED, Kind.EXTRA
+DAMAGED = Kind.DAMAGED
 BIN = Path(sys.executable).parent
 
 # Job lines 2, 4, 5, 6, 7; line 1 is a comment and line 3 blank.
@@ -187,14 +188,43 @@ def test_every_job_command_and_journal_line_is_accounted_for(job, journal):
         if problem.job_line is not None:
             assert commands[problem.job_line] == problem.command
         if problem.journal_line is not None:
-            assert journal[problem.journal_line - 1] == problem.command
-    in_place = len(job) - result.count(MISSING) - result.count(REORDERED)
+            ran_as = problem.ran_as if problem.kind is DAMAGED else problem.command
+            assert journal[problem.journal_line - 1] == ran_as
+    damaged = result.count(DAMAGED)
+    in_place = len(job) - result.count(MISSING) - result.count(REORDERED) - damaged
     ran = in_place + result.count(REORDERED) + result.count(DUPLICATED) + result.count(EXTRA)
-    assert ran == len(journal) == result.journal_commands
+    assert ran + damaged == len(journal) == result.journal_commands
     assert not result.approximate
     # As many run in place as any alignment could manage: an exact longest common subsequence.
     runs = [command for command in journal if command in commands.values()]
     assert in_place == longest_common_subsequence(texts_of(job), runs)
+
+
+def test_a_command_changed_where_it_was_due_ran_damaged_not_missing():
+    job = job_commands("G28\nG1 X37 Y4 F6000\nG1 X1\nM400\n")
+    # '3' -> '1' and '7' -> '5': the same bit of two characters, which XOR cannot see.
+    (problem,) = verify(job, ["G28", "G1 X15 Y4 F6000", "G1 X1", "M400"], "marlin").problems
+    assert (problem.kind, problem.job_line, problem.journal_line) == (DAMAGED, 2, 2)
+    assert problem.ran_as == "G1 X15 Y4 F6000"
+    assert not verify(job, ["G28", "G1 X15 Y4 F6000", "G1 X1", "M400"]).passed()
+    assert verify(job, ["G28", "G1 X15 Y4 F6000", "G1 X1", "M400"]).passed(allow_undetectable=True)
+
+
+def test_a_change_the_checksum_would_have_seen_is_no_damage_but_a_loss():
+    job = job_commands("G1 X2\nG1 X5\nM400\n")
+    # For Marlin '2' -> '3' is one flip, which its checksum always catches: G1 X2 was lost and
+    # something else ran.
+    kinds = [p.kind for p in verify(job, ["G1 X3", "G1 X5", "M400"], "marlin").problems]
+    assert kinds == [MISSING, EXTRA]
+    # Where the protocol is not known, a one-character change where it was due is damage.
+    kinds = [p.kind for p in verify(job, ["G1 X3", "G1 X5", "M400"]).problems]
+    assert kinds == [DAMAGED]
+
+
+def test_a_changed_copy_far_from_where_it_was_due_is_no_damage():
+    job = job_commands("G28\nG1 X37 Y4 F6000\nG1 X1\nM400\n")
+    kinds = [p.kind for p in verify(job, ["G28", "G1 X1", "M400", "G1 X15 Y4 F6000"]).problems]
+    assert kinds == [MISSING, EXTRA]
 
 
 def longest_common_subsequence(a, b):

@@ -15,6 +15,7 @@ from fake_marlin.emulator.journal.verify import (
     Kind,
     Problem,
     Verification,
+    describe_damage,
     job_commands,
     verify,
 )
@@ -37,6 +38,10 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("journal", metavar="JOURNAL", help="the file fake-marlin --journal wrote")
     parser.add_argument("--strict", action="store_true", help="extra commands fail the check too")
     parser.add_argument("--json", action="store_true", help="print every problem as JSON instead")
+    parser.add_argument(
+        "--allow-undetectable", action="store_true",
+        help="commands that ran damaged past the protocol's checksum are no failure",
+    )
     parser.add_argument(
         "--limit", type=_count, default=20, metavar="N",
         help="problems to list (default 20; 0 lists all)",
@@ -77,21 +82,27 @@ def main(argv: list[str] | None = None) -> int:
         if args.json:
             print(json.dumps(_as_json(result, args), indent=2))
         else:
-            print(report(result, args.strict, args.limit))
+            print(report(result, args.strict, args.limit, args.allow_undetectable))
         sys.stdout.flush()
     except BrokenPipeError:  # `| head` has read enough; the verdict is still the exit code
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
-    return 0 if result.passed(args.strict) else 1
+    return 0 if result.passed(args.strict, args.allow_undetectable) else 1
 
 
-def report(result: Verification, strict: bool = False, limit: int = 20) -> str:
+def report(
+    result: Verification, strict: bool = False, limit: int = 20, allow_undetectable: bool = False
+) -> str:
     """A few lines a person reads: the verdict, then the first `limit` failures."""
-    failures = result.failures(strict)
-    kinds = FAILURES + (Kind.EXTRA,) if strict else FAILURES
+    failures = result.failures(strict, allow_undetectable)
+    kinds: tuple[Kind, ...] = FAILURES + (Kind.EXTRA,) if strict else FAILURES
+    # Damage past the checksum is rare and its own story: counted only where it happened.
+    kinds = tuple(kind for kind in kinds if kind is not Kind.DAMAGED or result.count(kind))
     if failures:
         lines = ["FAILED: " + ", ".join(f"{result.count(kind)} {kind.value}" for kind in kinds)]
     else:
         lines = [f"OK: each of the {result.job_commands} job commands ran once, in order"]
+        if result.count(Kind.DAMAGED):
+            lines[0] += f" ({result.count(Kind.DAMAGED)} damaged past the checksum, allowed)"
     shown = failures if limit == 0 else failures[:limit]
     lines += ["  " + _describe(problem) for problem in shown]
     if len(shown) < len(failures):
@@ -125,11 +136,13 @@ def _describe(problem: Problem) -> str:
                     f"{problem.journal_line}: {command}")
         case Kind.EXTRA:
             return f"extra       journal line {problem.journal_line}, not the job's: {command}"
+        case Kind.DAMAGED:
+            return describe_damage(problem)
 
 
 def _as_json(result: Verification, args: argparse.Namespace) -> dict:
     return {
-        "ok": result.passed(args.strict),
+        "ok": result.passed(args.strict, args.allow_undetectable),
         "strict": args.strict,
         "job": args.job,
         "journal": args.journal,
@@ -139,7 +152,7 @@ def _as_json(result: Verification, args: argparse.Namespace) -> dict:
         "approximate": result.approximate,
         "problems": [
             {"kind": p.kind.value, "job_line": p.job_line, "journal_line": p.journal_line,
-             "command": p.command}
+             "command": p.command, **({"ran_as": p.ran_as} if p.kind is Kind.DAMAGED else {})}
             for p in result.problems
         ],
     }

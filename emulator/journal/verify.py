@@ -17,13 +17,19 @@ aligned exactly on its own; a stretch with more than MAX_EDITS differences (a jo
 job) is not aligned at all, its commands only paired by text, and the result says it is
 approximate.
 
+A job command that is missing where a journal line of the same length ran in its place,
+differing in a few characters, ran damaged: the wire changed it in a way the protocol's check
+could not see (Marlin's XOR checksum misses two flips of the same bit in two characters). It is
+reported as such, apart from missing and duplicated commands; the printer did what the real
+firmware does, and no host can prevent it, so a caller may accept it (allow_undetectable).
+
 Pure: no I/O. `fake_marlin.emulator.cli.verify` reads the files and prints the report.
 """
 
 import bisect
 import re
 from collections import Counter, defaultdict, deque
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from enum import Enum
 
@@ -39,6 +45,10 @@ MAX_EDITS = 1000
 is about their square, and their number times the length when few lines are unique: 1000 in a
 100,000-line job of nothing but two alternating lines (the worst case) take about 3 s."""
 
+DAMAGED_AT_MOST = 4
+"""Characters that may differ between a job command and what ran in its place for it to count
+as that command damaged, rather than a command lost and another one run."""
+
 _COMMAND_WORD = re.compile(r"[A-Za-z]\d+")
 
 
@@ -47,9 +57,10 @@ class Kind(Enum):
     DUPLICATED = "duplicated"  # a job command that ran again
     REORDERED = "reordered"  # a job command that ran, but not in its place
     EXTRA = "extra"  # a journal line that is not the job's: the host's own command, or garbage
+    DAMAGED = "ran damaged"  # a job command that ran changed, past the protocol's check
 
 
-FAILURES = (Kind.MISSING, Kind.DUPLICATED, Kind.REORDERED)
+FAILURES = (Kind.MISSING, Kind.DUPLICATED, Kind.REORDERED, Kind.DAMAGED)
 
 
 @dataclass(frozen=True)
@@ -58,6 +69,7 @@ class Problem:
     command: str
     job_line: int | None  # None for an extra
     journal_line: int | None  # where it ran; None for a missing command
+    ran_as: str | None = None  # what a damaged command ran as
 
 
 @dataclass(frozen=True)
@@ -70,12 +82,16 @@ class Verification:
     def count(self, kind: Kind) -> int:
         return sum(problem.kind is kind for problem in self.problems)
 
-    def failures(self, strict: bool = False) -> tuple[Problem, ...]:
-        """Extras are the host's business unless `strict`."""
-        return tuple(p for p in self.problems if strict or p.kind in FAILURES)
+    def failures(self, strict: bool = False, allow_undetectable: bool = False) -> tuple[Problem, ...]:
+        """Extras are the host's business unless `strict`; damage the protocol cannot see is
+        no failure with `allow_undetectable`."""
+        return tuple(
+            p for p in self.problems
+            if (strict or p.kind in FAILURES) and not (allow_undetectable and p.kind is Kind.DAMAGED)
+        )
 
-    def passed(self, strict: bool = False) -> bool:
-        return not self.failures(strict)
+    def passed(self, strict: bool = False, allow_undetectable: bool = False) -> bool:
+        return not self.failures(strict, allow_undetectable)
 
 
 def job_commands(text: str) -> list[tuple[int, str]]:
@@ -89,8 +105,14 @@ def is_host_command(command: str) -> bool:
     return word is not None and word.group().upper() in HOST_COMMANDS
 
 
-def verify(job: Sequence[tuple[int, str]], journal: Sequence[str]) -> Verification:
+def verify(
+    job: Sequence[tuple[int, str]], journal: Sequence[str], protocol: str | None = None
+) -> Verification:
     """Explain the journal as the job run once in order, plus as few problems as possible.
+
+    `protocol`, where known, says what damage its check cannot see (for Marlin: what keeps the
+    XOR checksum); otherwise a copy of a command's length with a few characters changed where
+    it was due counts as that command damaged.
 
     `job` holds (line number, command) pairs; `journal[k]` is journal line k + 1 (blank lines are
     no commands). A journal line that is no job command is an extra. One that is runs a job
@@ -140,9 +162,14 @@ def verify(job: Sequence[tuple[int, str]], journal: Sequence[str]) -> Verificati
             found.append(((number, i), Problem(Kind.REORDERED, job[i][1], job[i][0], number)))
         else:
             again.append((number, command))
-    for i, last in due_after.items():
-        if ran_at[i] is None:
-            found.append(((last + 0.5, i), Problem(Kind.MISSING, job[i][1], job[i][0], None)))
+    unrun = [i for i in due_after if ran_at[i] is None]
+    found, again, damaged = _damaged(
+        unrun, found, again, job, written, ran_at, due_after, UNSEEN.get(protocol, _looks_damaged)
+    )
+    for i in unrun:
+        if i not in damaged:
+            missing = Problem(Kind.MISSING, job[i][1], job[i][0], None)
+            found.append(((due_after[i] + 0.5, i), missing))
 
     # A repeat is charged to the run of the same command just before it. With none before, it
     # ran first, and the first run after it counts as the repeat instead.
@@ -170,6 +197,78 @@ def verify(job: Sequence[tuple[int, str]], journal: Sequence[str]) -> Verificati
         journal_commands=len(ran),
         approximate=approximate,
     )
+
+
+def _damaged(
+    unrun: list[int],
+    found: list[tuple[tuple[float, int], Problem]],
+    again: list[tuple[int, str]],
+    job: Sequence[tuple[int, str]],
+    written: dict[int, str],
+    ran_at: list[int | None],
+    due_after: dict[int, int],
+    unseen: Callable[[str, str], bool],
+) -> tuple[list[tuple[tuple[float, int], Problem]], list[tuple[int, str]], set[int]]:
+    """Job commands that did not run, each of which a damaged copy ran in place of: where it
+    was due, a journal line of its length that differs in a few characters (an extra, or what
+    would look like a repeat of another command). Returns `found` with those extras replaced by
+    the damaged commands, `again` without those lines, and the job indices they stand for."""
+    next_ran, upcoming = [0.0] * len(job), float("inf")  # journal line of the next command run
+    for i in range(len(job) - 1, -1, -1):
+        next_ran[i] = upcoming
+        at = ran_at[i]
+        if at is not None:
+            upcoming = at
+    candidates = sorted(
+        [p.journal_line for _, p in found if p.kind is Kind.EXTRA and p.journal_line is not None]
+        + [number for number, _ in again]
+    )
+    used: dict[int, int] = {}  # journal line -> the job index it ran damaged for
+    for i in unrun:
+        expected = job[i][1].strip()
+        window = candidates[bisect.bisect_right(candidates, due_after[i]):]
+        match = next(
+            (n for n in window if n < next_ran[i] and n not in used
+             and unseen(expected, written[n])),
+            None,
+        )
+        if match is not None:
+            used[match] = i
+    kept = [
+        (key, problem) for key, problem in found
+        if not (problem.kind is Kind.EXTRA and problem.journal_line in used)
+    ]
+    kept += [
+        ((n, i), Problem(Kind.DAMAGED, job[i][1], job[i][0], n, ran_as=written[n]))
+        for n, i in used.items()
+    ]
+    return kept, [(n, command) for n, command in again if n not in used], set(used.values())
+
+
+def describe_damage(problem: Problem) -> str:
+    return (f"ran damaged: job line {problem.job_line} `{problem.command}` ran as "
+            f"`{problem.ran_as}` (its checksum cannot see this)")
+
+
+def _looks_damaged(expected: str, ran: str) -> bool:
+    return (len(ran) == len(expected) and ran != expected
+            and sum(a != b for a, b in zip(expected, ran)) <= DAMAGED_AT_MOST)
+
+
+def _passes_xor(expected: str, ran: str) -> bool:
+    """Damage Marlin's checksum cannot see: the XOR of the line's characters is unchanged."""
+    return _looks_damaged(expected, ran) and _xor(expected) == _xor(ran)
+
+
+def _xor(text: str) -> int:
+    checksum = 0
+    for byte in text.encode("latin-1", "replace"):
+        checksum ^= byte
+    return checksum
+
+
+UNSEEN: dict[str | None, Callable[[str, str], bool]] = {"marlin": _passes_xor}
+"""Per protocol, whether `ran` could be `expected` damaged past the protocol's check."""
 
 
 def _align(a: list[str], b: list[str]) -> tuple[list[tuple[int, int]], bool]:
