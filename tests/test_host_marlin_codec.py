@@ -1,6 +1,8 @@
 """The host's Marlin codec: what it sends, checked by the printer's own state machine, and how it
 reads every kind of line Marlin says."""
 
+import itertools
+
 import pytest
 from hypothesis import given
 from hypothesis import strategies as st
@@ -213,6 +215,21 @@ def test_no_single_bit_flip_makes_the_probe_move_the_counter(counter):
             while (event := printer.next_event()) is not None:
                 assert not (isinstance(event, LineReceived) and event.line_number is not None)
             assert printer.last_n == counter, bytes(damaged)
+
+
+def test_no_two_bit_flips_make_the_probe_an_emergency_command():
+    """The emergency parser runs M108/M112/M410 on arrival, unchecked: a probe damaged into one
+    would stop the printer (kill) in the middle of recovering from a noisy line."""
+    body = PROBE[1:]
+    flips = [(index, bit) for index in range(len(body) - 1) for bit in range(8)]
+    for first, second in itertools.combinations_with_replacement(flips, 2):
+        damaged = bytearray(body)
+        for index, bit in {first, second}:
+            damaged[index] ^= 1 << bit
+        printer = MarlinProtocol()
+        printer.receive_data(bytes(damaged))
+        while (event := printer.next_event()) is not None:
+            assert not isinstance(event, EmergencyCommand), bytes(damaged)
 
 
 def test_the_probe_ends_a_partial_line_instead_of_joining_it():

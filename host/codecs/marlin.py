@@ -20,18 +20,23 @@ from fake_marlin.host.errors import CommandError
 MAX_COMMAND = 80
 MAX_WIRE_LINE = 95
 
-# The probe: a numbered line the printer always refuses and never runs. "M110" in a line makes
-# Marlin skip the line-number check, and the missing checksum then draws
+# The probe: a numbered line the printer always refuses and never runs. "M110" anywhere in a
+# line makes Marlin skip the line-number check, and the missing checksum then draws
 # `Error:No Checksum with line number, Last Line: <L>`, `Resend: <L+1>`, `ok`: the printer's
 # line counter, read without side effects. No single bit flip can make it acceptable: it would
 # need a `*` (none of its characters is one flip from it) or a changed "M110" (then N0 is no
 # successor of any counter >= 0 but -1, and still has no checksum).
+# Its command is M105, with the M110 after it: Marlin's emergency parser acts on a line's first
+# command the moment it arrives, checksum or not, and a lone "M110" is one bit from "M112"
+# (kill). M105 is three bits from the nearest emergency command (M108), and the parser never
+# looks past the first command. (The probe sent during recovery from a noisy line killed the
+# printer in a test before this.)
 # It starts with a line feed. Without it, a probe sent after a line whose end was lost joins
 # that line, and Marlin, finding "M110" in the joined line, takes its line number from the
 # probe's N0 while the checksum at the end still fits the first line: it runs the line and sets
 # its counter to 0. The line feed ends the partial line first (which is then run or refused on
 # its own merits); an empty line is ignored.
-PROBE = b"\nN0 M110\n"
+PROBE = b"\nN0 M105 M110\n"
 
 
 def xor_checksum(data: bytes) -> int:
