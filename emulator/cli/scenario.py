@@ -54,6 +54,7 @@ def main(argv: list[str]) -> int:
                 "commands": len(scenario.job), "executed": len(result.journal),
                 "simulated_seconds": round(result.simulated_seconds, 3),
                 "resends": result.summary.resends if result.summary else None,
+                "digest": result.digest,
                 "checks": [{"name": c.name, "passed": c.passed, "detail": c.detail} for c in result.checks],
             }))
         else:

@@ -5,11 +5,10 @@ commands that survive it. Damage is drawn from a seeded generator: a run can be 
 """
 
 import dataclasses
-import random
 from dataclasses import dataclass, field
 from enum import Enum
 
-from fake_marlin.emulator.faults.rules import FaultKind, FaultPlan, FaultRule
+from fake_marlin.emulator.faults.rules import FaultKind, FaultPlan, FaultRule, stream_random
 
 
 class Direction(Enum):
@@ -96,7 +95,11 @@ class FaultLayer:
     def __init__(self, config: FaultConfig = FaultConfig()) -> None:
         self.config = config
         self.plan = FaultPlan(config.rules, config.seed)
-        self._random = random.Random(config.seed)
+        # Each direction's damage draws from generators of its own, byte by byte (bits, drops)
+        # and line by line (corrupt lines): the same bytes get the same damage however they are
+        # cut into reads, and whatever the other direction does meanwhile.
+        self._byte_random = {d: stream_random(config.seed, f"{d.value} bytes") for d in Direction}
+        self._line_random = {d: stream_random(config.seed, f"{d.value} lines") for d in Direction}
         self.stats = {direction: FaultStats() for direction in Direction}
         self._at_line_start = {direction: True for direction in Direction}
         self._partial = {direction: b"" for direction in Direction}
@@ -148,7 +151,7 @@ class FaultLayer:
                 elif kind is FaultKind.TRUNCATE:
                     out = out[: rule.length or len(out) // 2]
                 elif kind is FaultKind.GARBAGE:
-                    out = (rule.text.encode("latin-1") or self.plan.noise(rule.length or 48)) + out
+                    out = self.plan.garbage(index) + out
                 elif kind is FaultKind.STALL:
                     pause += rule.seconds
                 elif kind is FaultKind.DISCONNECT:
@@ -190,27 +193,29 @@ class FaultLayer:
         if faults.line_corruption_rate:
             data = self._corrupt_lines(data, direction, faults.line_corruption_rate, stats)
         byte_error_rate = 1.0 - (1.0 - faults.bit_error_rate) ** 8
+        draw = self._byte_random[direction]
         out = bytearray()
         for byte in data:
-            if faults.drop_rate and self._random.random() < faults.drop_rate:
+            if faults.drop_rate and draw.random() < faults.drop_rate:
                 continue
-            if byte_error_rate and self._random.random() < byte_error_rate:
-                byte ^= 1 << self._random.randrange(8)
+            if byte_error_rate and draw.random() < byte_error_rate:
+                byte ^= 1 << draw.randrange(8)
             out.append(byte)
         return bytes(out)
 
     def _corrupt_lines(self, data: bytes, direction: Direction, rate: float, stats: FaultStats) -> bytes:
         """Each line that starts in `data` is damaged with chance `rate`, in one character."""
         out = bytearray(data)
+        draw = self._line_random[direction]
         start = 0
         while start < len(out):
             end = start
             while end < len(out) and out[end] not in _LINE_ENDS:
                 end += 1
-            if self._at_line_start[direction] and end > start and self._random.random() < rate:
-                position = self._random.randrange(start, end)
+            if self._at_line_start[direction] and end > start and draw.random() < rate:
+                position = draw.randrange(start, end)
                 while True:  # a flip that made a line end would cut the line, not damage it
-                    damaged = out[position] ^ (1 << self._random.randrange(8))
+                    damaged = out[position] ^ (1 << draw.randrange(8))
                     if damaged not in _LINE_ENDS:
                         break
                 out[position] = damaged

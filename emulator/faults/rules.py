@@ -2,8 +2,11 @@
 
 A unit is what the protocol frames: a line of text either way, or an Ultimaker packet on its
 way to the printer. Link faults act on units in one direction; printer faults act on the
-printer when a command is about to run (or at a moment). Decisions come from a seeded
-generator and counters, never from a clock, so the same run makes the same faults.
+printer when a command is about to run (or at a moment). Decisions come from seeded
+generators and counters, never from a clock, so the same run makes the same faults. Each rule
+draws from a generator of its own, seeded from the run's seed and its place in the file: what
+it decides depends only on the units (or commands) it has seen, never on which other rule or
+direction happened to draw first.
 """
 
 import random
@@ -106,8 +109,17 @@ def printer_failure(rule: FaultRule) -> Failure:
     return Failure(kind, heater=rule.heater, seconds=rule.seconds, text=rule.text)
 
 
+def stream_random(seed: int, stream: str) -> random.Random:
+    """A generator of its own for one stream of decisions (a rule, a direction's damage).
+
+    Seeded with a string, which Random hashes with SHA-512: the same on every run, whatever
+    PYTHONHASHSEED says."""
+    return random.Random(f"{seed}/{stream}")
+
+
 @dataclass
 class _RuleState:
+    random: random.Random
     count: int = 0
     fired: int = 0
 
@@ -116,17 +128,18 @@ class _RuleState:
 class FaultPlan:
     rules: tuple[FaultRule, ...] = ()
     seed: int = 0
-    _random: random.Random = field(init=False, repr=False)
     _state: dict[int, _RuleState] = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
-        self._random = random.Random(self.seed)
-        self._state = {index: _RuleState() for index in range(len(self.rules))}
+        self._state = {index: self._new_state(index) for index in range(len(self.rules))}
+
+    def _new_state(self, index: int) -> _RuleState:
+        return _RuleState(stream_random(self.seed, f"rule {index}"))
 
     def add(self, rule: FaultRule) -> None:
         """A fault added while the printer runs (the control channel)."""
         self.rules = (*self.rules, rule)
-        self._state[len(self.rules) - 1] = _RuleState()
+        self._state[len(self.rules) - 1] = self._new_state(len(self.rules) - 1)
 
     def link_rules(self, direction: str) -> list[tuple[int, FaultRule]]:
         return [
@@ -140,10 +153,15 @@ class FaultPlan:
             if rule.kind not in LINK_KINDS and rule.trigger.at is None
         ]
 
-    def timed_rules(self) -> list[tuple[float, FaultRule]]:
-        """Rules that fire at a moment, in time order, each with its moment."""
-        timed = [(rule.trigger.at, rule) for rule in self.rules if rule.trigger.at is not None]
-        return sorted(timed, key=lambda entry: entry[0])
+    def timed_rules(self) -> list[tuple[float, int, FaultRule]]:
+        """Rules that fire at a moment, in time order (file order at the same moment), each
+        with its moment and index."""
+        timed = [
+            (rule.trigger.at, index, rule)
+            for index, rule in enumerate(self.rules)
+            if rule.trigger.at is not None
+        ]
+        return sorted(timed, key=lambda entry: entry[:2])
 
     def fires(self, index: int, text: str) -> bool:
         """Does rule `index` fire on this unit or command? Counts it either way."""
@@ -159,17 +177,22 @@ class FaultPlan:
         elif trigger.every is not None:
             hit = state.count % trigger.every == 0
         elif trigger.probability is not None:
-            hit = self._random.random() < trigger.probability
+            hit = state.random.random() < trigger.probability
         else:
             hit = True
         state.fired += hit
         return hit
 
-    def noise(self, length: int) -> bytes:
-        """What a crashing co-processor spits into the line: debug text and stray bytes."""
+    def garbage(self, index: int) -> bytes:
+        """What rule `index` (a garbage fault) puts on the line this time: its text, or what a
+        crashing co-processor spits out, debug text and stray bytes, drawn by the rule."""
+        rule = self.rules[index]
+        if rule.text:
+            return rule.text.encode("latin-1")
         words = (b"DBG ", b"stack ", b"0x3ffb", b"rst:0x8 ", b"\x00", b"\xff", b"ets Jun  8 ",
                  b"boot:0x13 ", b"\r\n", b"load:0x4008 ")
         out = bytearray()
-        while len(out) < length:
-            out += self._random.choice(words)
-        return bytes(out[:length])
+        draw = self._state[index].random
+        while len(out) < (rule.length or 48):
+            out += draw.choice(words)
+        return bytes(out[: rule.length or 48])

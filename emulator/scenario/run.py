@@ -2,19 +2,29 @@
 
 Both sides share trio's clock, here a MockClock that jumps ahead whenever everything waits,
 so a scenario full of timeouts runs in moments, yet every delay is honoured in order.
+
+A run is a pure function of its file. Nothing reads the wall clock; every fault decision
+comes from a generator of its own, seeded from the scenario; and trio's scheduler, which on
+purpose runs tasks that are ready at the same instant in a random order (and breaks ties
+between equal deadlines by object address), is pinned to a seeded order for the run, as
+pytest-trio and hypothesis pin it. The digest of the wire transcript (every chunk each way,
+with its simulated time) proves it: the same file gives the same digest on every run.
 """
 
+import hashlib
 import io
 import tempfile
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import trio
 import trio.testing
 
-from fake_marlin.emulator.journal.verify import FAILURES, Kind, verify
+from fake_marlin.emulator.journal.verify import FAILURES, Kind, describe_damage, verify
 from fake_marlin.emulator.journal.writer import Journal
-from fake_marlin.emulator.link.memory import MemoryLink
+from fake_marlin.emulator.link.memory import HostEnd, MemoryLink
 from fake_marlin.emulator.printer.model import Printer, PrinterConfig
 from fake_marlin.emulator.scenario.definition import Scenario
 from fake_marlin.emulator.server.lifecycle import PrinterServer
@@ -45,32 +55,67 @@ class ScenarioResult:
     boots: int = 0
     simulated_seconds: float = 0.0
     checks: list[Check] = field(default_factory=list)
+    digest: str = ""  # of the wire transcript: the same file gives the same digest
 
     @property
     def passed(self) -> bool:
         return all(check.passed for check in self.checks)
 
 
-class _Recorder:
-    """The host's stream, keeping a copy of everything the printer sent."""
+class _Wire:
+    """Everything that crossed the line, as the host saw it: what the printer sent, and a
+    running digest of every chunk each way with the simulated moment it crossed."""
 
-    def __init__(self, stream, received: bytearray | None = None) -> None:
+    def __init__(self) -> None:
+        self.received = bytearray()
+        self._digest = hashlib.sha256()
+
+    def record(self, direction: bytes, data: bytes) -> None:
+        self._digest.update(b"%s %r %d:" % (direction, trio.current_time(), len(data)) + data)
+
+    def digest(self) -> str:
+        return self._digest.hexdigest()
+
+
+class _Recorder:
+    """The host's stream, keeping a record of the wire (one record across reconnections)."""
+
+    def __init__(self, stream: HostEnd, wire: _Wire) -> None:
         self._stream = stream
-        self.received = bytearray() if received is None else received
+        self.wire = wire
 
     async def send_all(self, data: bytes) -> None:
+        self.wire.record(b">", data)
         await self._stream.send_all(data)
 
-    async def receive_some(self, max_bytes: int = 4096) -> bytes:
-        data = await self._stream.receive_some(max_bytes)
-        self.received += data
+    async def receive_some(self, max_bytes: int | None = 4096) -> bytes:
+        data = await self._stream.receive_some(max_bytes or 4096)
+        self.wire.record(b"<", data)
+        self.wire.received += data
         return data
+
+
+@contextmanager
+def pinned_scheduler(seed: int) -> Iterator[None]:
+    """Trio's scheduler in a seeded order for the length of the block (see the module's
+    docstring): what pytest-trio and hypothesis do, through the same private switch."""
+    run = trio._core._run
+    saved = run._ALLOW_DETERMINISTIC_SCHEDULING, run._r.getstate()
+    run._ALLOW_DETERMINISTIC_SCHEDULING = True  # type: ignore[misc]
+    run._r.seed(f"fake-marlin scheduler {seed}")
+    try:
+        yield
+    finally:
+        run._ALLOW_DETERMINISTIC_SCHEDULING = saved[0]  # type: ignore[misc]
+        run._r.setstate(saved[1])
 
 
 def run_scenario(scenario: Scenario) -> ScenarioResult:
     clock = trio.testing.MockClock(autojump_threshold=0)
     # The printer has an SD card, as `fake-marlin` gives it one: an empty temporary directory.
-    with tempfile.TemporaryDirectory(prefix="fake-marlin-sd-") as sd_dir:
+    with tempfile.TemporaryDirectory(prefix="fake-marlin-sd-") as sd_dir, pinned_scheduler(
+        scenario.faults.seed
+    ):
         return trio.run(_run, scenario, Path(sd_dir), clock=clock)
 
 
@@ -88,7 +133,8 @@ async def _run(scenario: Scenario, sd_dir: Path) -> ScenarioResult:
     start = trio.current_time()
     async with trio.open_nursery() as nursery:
         await nursery.start(server.run)
-        stream = _Recorder(link.open_host())
+        wire = _Wire()
+        stream = _Recorder(link.open_host(), wire)
         with trio.move_on_after(SIMULATED_TIME_LIMIT) as limit:
             try:
                 job = list(scenario.job)
@@ -96,7 +142,7 @@ async def _run(scenario: Scenario, sd_dir: Path) -> ScenarioResult:
                     job = await _print_until_disconnect(
                         stream, scenario, options, job, scenario.host.disconnect_after
                     )
-                    stream = _Recorder(link.open_host(), stream.received)
+                    stream = _Recorder(link.open_host(), wire)
                 result.summary = await _print_reconnecting(link, stream, scenario, options, job)
             except BaseException as raised:  # noqa: BLE001 - the host's failure is the result
                 error = sole_exception(raised)
@@ -109,7 +155,8 @@ async def _run(scenario: Scenario, sd_dir: Path) -> ScenarioResult:
         nursery.cancel_scope.cancel()
     result.simulated_seconds = trio.current_time() - start
     result.journal = journal_text.getvalue().splitlines()
-    result.transcript = stream.received.decode("latin-1").replace("\r", "").split("\n")
+    result.transcript = wire.received.decode("latin-1").replace("\r", "").split("\n")
+    result.digest = wire.digest()
     result.printer_halted = printer.halted
     result.boots = server.boots
     result.checks = _check(scenario, result)
@@ -131,7 +178,7 @@ async def _print_reconnecting(link, stream, scenario: Scenario, options, job: li
         await trio.sleep(scenario.host.reconnect_after)
         while not link.connected:
             await trio.sleep(0.1)
-        stream = _Recorder(link.open_host(), stream.received)
+        stream = _Recorder(link.open_host(), stream.wire)
 
 
 async def _print_until_disconnect(stream, scenario: Scenario, options, job: list[str], after: int):
@@ -164,14 +211,22 @@ def _check(scenario: Scenario, result: ScenarioResult) -> list[Check]:
                             result.error is not None and result.error.startswith(expect.error + ":"),
                             result.error or "no error"))
     if expect.exactly_once is not None:
-        verdict = verify(list(enumerate(scenario.job, start=1)), result.journal)
-        counts = ", ".join(f"{verdict.count(kind)} {kind.value}" for kind in FAILURES)
-        extras = [p.command for p in verdict.problems if p not in verdict.failures()]
+        verdict = verify(
+            list(enumerate(scenario.job, start=1)), result.journal, scenario.host_protocol
+        )
+        counts = ", ".join(
+            f"{verdict.count(kind)} {kind.value}" for kind in FAILURES
+            if kind is not Kind.DAMAGED or verdict.count(kind)
+        )
+        extras = [p.command for p in verdict.problems if p.kind is Kind.EXTRA]
+        damaged = [p for p in verdict.problems if p.kind is Kind.DAMAGED]
         checks.append(Check(
             "every job command ran exactly once, in order" if expect.exactly_once
             else "some job command did not run exactly once",
-            verdict.passed() == expect.exactly_once,
-            counts + (f"; host's own: {', '.join(sorted(set(extras)))}" if extras else ""),
+            verdict.passed(allow_undetectable=expect.allow_undetectable) == expect.exactly_once,
+            counts
+            + "".join(f"; {describe_damage(p)}" for p in damaged)
+            + (f"; host's own: {', '.join(sorted(set(extras)))}" if extras else ""),
         ))
     if expect.missing is not None or expect.duplicated_at_most is not None:
         verdict = verify(list(enumerate(scenario.job, start=1)), result.journal)
@@ -209,6 +264,7 @@ def report(result: ScenarioResult) -> str:
         + (f": {result.error}" if result.error else "")
         + f"; {len(result.journal)} commands executed of {len(scenario.job)} in the job"
         + f"; {result.simulated_seconds:.1f} s simulated; printer booted {result.boots}x"
+        + f"; wire digest {result.digest[:12]}"
     )
     if summary is not None:
         lines.append(

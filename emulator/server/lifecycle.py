@@ -211,12 +211,12 @@ class PrinterServer:
         return session.active if isinstance(session, DetectingSession) else session
 
     async def _fire_timed_faults(self, powered_on: float) -> None:
-        for at, rule in self.faults.plan.timed_rules():
+        for at, index, rule in self.faults.plan.timed_rules():
             await trio.sleep_until(powered_on + at)
             if rule.kind not in LINK_KINDS:
                 self._printer_fault(rule)
             elif rule.kind is FaultKind.GARBAGE:
-                noise = rule.text.encode("latin-1") or self.faults.plan.noise(rule.length or 48)
+                noise = self.faults.plan.garbage(index)
                 if rule.direction == "to-printer":
                     self._to_printer.put(noise)
                 else:
