@@ -203,22 +203,36 @@ def test_every_job_command_and_journal_line_is_accounted_for(job, journal):
 def test_a_command_changed_where_it_was_due_ran_damaged_not_missing():
     job = job_commands("G28\nG1 X37 Y4 F6000\nG1 X1\nM400\n")
     # '3' -> '1' and '7' -> '5': the same bit of two characters, which XOR cannot see.
-    (problem,) = verify(job, ["G28", "G1 X15 Y4 F6000", "G1 X1", "M400"], "marlin").problems
+    (problem,) = verify(job, ["G28", "G1 X15 Y4 F6000", "G1 X1", "M400"]).problems
     assert (problem.kind, problem.job_line, problem.journal_line) == (DAMAGED, 2, 2)
     assert problem.ran_as == "G1 X15 Y4 F6000"
     assert not verify(job, ["G28", "G1 X15 Y4 F6000", "G1 X1", "M400"]).passed()
     assert verify(job, ["G28", "G1 X15 Y4 F6000", "G1 X1", "M400"]).passed(allow_undetectable=True)
 
 
-def test_a_change_the_checksum_would_have_seen_is_no_damage_but_a_loss():
-    job = job_commands("G1 X2\nG1 X5\nM400\n")
-    # For Marlin '2' -> '3' is one flip, which its checksum always catches: G1 X2 was lost and
-    # something else ran.
-    kinds = [p.kind for p in verify(job, ["G1 X3", "G1 X5", "M400"], "marlin").problems]
+def test_a_line_cut_short_at_a_damaged_star_ran_damaged():
+    """`N67 G1 X65 Y65 E48.80 F3000*50` with `.` -> `*` and `F` -> `B` (one bit, twice) passes
+    the XOR checksum, and Marlin runs it up to the first `*`."""
+    job = job_commands("G1 X64 Y84 E48.00 F3000\nG1 X65 Y65 E48.80 F3000\nG1 X85 Y65\n")
+    journal = ["G1 X64 Y84 E48.00 F3000", "G1 X65 Y65 E48", "G1 X85 Y65"]
+    (problem,) = verify(job, journal).problems
+    assert (problem.kind, problem.job_line, problem.ran_as) == (DAMAGED, 2, "G1 X65 Y65 E48")
+
+
+def test_a_line_whose_space_after_its_number_flipped_ran_damaged():
+    """`N464!G1 X104 Y84 E366.40 G3000*15`: a space and an F, each one bit off, in the same bit."""
+    job = job_commands("G1 X84 Y84\nG1 X104 Y84 E366.40 F3000\nG1 X104 Y104\n")
+    journal = ["G1 X84 Y84", "!G1 X104 Y84 E366.40 G3000", "G1 X104 Y104"]
+    (problem,) = verify(job, journal).problems
+    assert (problem.kind, problem.job_line) == (DAMAGED, 2)
+
+
+def test_something_else_where_a_command_was_due_is_no_damage():
+    job = job_commands("G1 X2 Y2\nG1 X5\nM400\n")
+    kinds = [p.kind for p in verify(job, ["G1 X9 Y9 Z9 E9", "G1 X5", "M400"]).problems]
     assert kinds == [MISSING, EXTRA]
-    # Where the protocol is not known, a one-character change where it was due is damage.
-    kinds = [p.kind for p in verify(job, ["G1 X3", "G1 X5", "M400"]).problems]
-    assert kinds == [DAMAGED]
+    kinds = [p.kind for p in verify(job, ["G1", "G1 X5", "M400"]).problems]
+    assert kinds == [MISSING, EXTRA]
 
 
 def test_a_changed_copy_far_from_where_it_was_due_is_no_damage():

@@ -17,9 +17,10 @@ aligned exactly on its own; a stretch with more than MAX_EDITS differences (a jo
 job) is not aligned at all, its commands only paired by text, and the result says it is
 approximate.
 
-A job command that is missing where a journal line of the same length ran in its place,
-differing in a few characters, ran damaged: the wire changed it in a way the protocol's check
-could not see (Marlin's XOR checksum misses two flips of the same bit in two characters). It is
+A job command that is missing where a journal line ran in its place that differs from it in a
+few characters, or is it cut short, ran damaged: the wire changed it in a way the protocol's
+check could not see (Marlin's XOR checksum misses two flips of the same bit, in the line or in
+its checksum digits). It is
 reported as such, apart from missing and duplicated commands; the printer did what the real
 firmware does, and no host can prevent it, so a caller may accept it (allow_undetectable).
 
@@ -29,7 +30,7 @@ Pure: no I/O. `fake_marlin.emulator.cli.verify` reads the files and prints the r
 import bisect
 import re
 from collections import Counter, defaultdict, deque
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 from enum import Enum
 
@@ -105,14 +106,8 @@ def is_host_command(command: str) -> bool:
     return word is not None and word.group().upper() in HOST_COMMANDS
 
 
-def verify(
-    job: Sequence[tuple[int, str]], journal: Sequence[str], protocol: str | None = None
-) -> Verification:
+def verify(job: Sequence[tuple[int, str]], journal: Sequence[str]) -> Verification:
     """Explain the journal as the job run once in order, plus as few problems as possible.
-
-    `protocol`, where known, says what damage its check cannot see (for Marlin: what keeps the
-    XOR checksum); otherwise a copy of a command's length with a few characters changed where
-    it was due counts as that command damaged.
 
     `job` holds (line number, command) pairs; `journal[k]` is journal line k + 1 (blank lines are
     no commands). A journal line that is no job command is an extra. One that is runs a job
@@ -163,9 +158,7 @@ def verify(
         else:
             again.append((number, command))
     unrun = [i for i in due_after if ran_at[i] is None]
-    found, again, damaged = _damaged(
-        unrun, found, again, job, written, ran_at, due_after, UNSEEN.get(protocol, _looks_damaged)
-    )
+    found, again, damaged = _damaged(unrun, found, again, job, written, ran_at, due_after)
     for i in unrun:
         if i not in damaged:
             missing = Problem(Kind.MISSING, job[i][1], job[i][0], None)
@@ -207,7 +200,6 @@ def _damaged(
     written: dict[int, str],
     ran_at: list[int | None],
     due_after: dict[int, int],
-    unseen: Callable[[str, str], bool],
 ) -> tuple[list[tuple[tuple[float, int], Problem]], list[tuple[int, str]], set[int]]:
     """Job commands that did not run, each of which a damaged copy ran in place of: where it
     was due, a journal line of its length that differs in a few characters (an extra, or what
@@ -229,7 +221,7 @@ def _damaged(
         window = candidates[bisect.bisect_right(candidates, due_after[i]):]
         match = next(
             (n for n in window if n < next_ran[i] and n not in used
-             and unseen(expected, written[n])),
+             and _looks_damaged(expected, written[n])),
             None,
         )
         if match is not None:
@@ -251,24 +243,33 @@ def describe_damage(problem: Problem) -> str:
 
 
 def _looks_damaged(expected: str, ran: str) -> bool:
-    return (len(ran) == len(expected) and ran != expected
-            and sum(a != b for a, b in zip(expected, ran)) <= DAMAGED_AT_MOST)
+    """Could `ran` be `expected` changed on the wire? A few characters changed (an edit
+    distance of at most DAMAGED_AT_MOST, and a quarter of its length: a flipped space after
+    the line number leaves a character in front), or cut short after its first parameter: the
+    flips that pass Marlin's XOR checksum (two of one bit) can make a `*` of a `.`, and the
+    firmware then runs the line only up to it."""
+    if ran == expected:
+        return False
+    if expected.startswith(ran) and len(ran.split()) >= 2:
+        return True
+    # A short command is another command after a few changes: G1 X3 is four from G92 E0.
+    limit = min(DAMAGED_AT_MOST, len(expected) // 4)
+    return _edit_distance(expected, ran, limit) <= limit
 
 
-def _passes_xor(expected: str, ran: str) -> bool:
-    """Damage Marlin's checksum cannot see: the XOR of the line's characters is unchanged."""
-    return _looks_damaged(expected, ran) and _xor(expected) == _xor(ran)
-
-
-def _xor(text: str) -> int:
-    checksum = 0
-    for byte in text.encode("latin-1", "replace"):
-        checksum ^= byte
-    return checksum
-
-
-UNSEEN: dict[str | None, Callable[[str, str], bool]] = {"marlin": _passes_xor}
-"""Per protocol, whether `ran` could be `expected` damaged past the protocol's check."""
+def _edit_distance(a: str, b: str, limit: int) -> int:
+    """Levenshtein distance, or limit + 1 once it is sure to be more than `limit`."""
+    if abs(len(a) - len(b)) > limit:
+        return limit + 1
+    previous = list(range(len(b) + 1))
+    for i, x in enumerate(a, 1):
+        current = [i]
+        for j, y in enumerate(b, 1):
+            current.append(min(previous[j] + 1, current[j - 1] + 1, previous[j - 1] + (x != y)))
+        if min(current) > limit:
+            return limit + 1
+        previous = current
+    return previous[-1]
 
 
 def _align(a: list[str], b: list[str]) -> tuple[list[tuple[int, int]], bool]:

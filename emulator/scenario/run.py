@@ -211,9 +211,7 @@ def _check(scenario: Scenario, result: ScenarioResult) -> list[Check]:
                             result.error is not None and result.error.startswith(expect.error + ":"),
                             result.error or "no error"))
     if expect.exactly_once is not None:
-        verdict = verify(
-            list(enumerate(scenario.job, start=1)), result.journal, scenario.host_protocol
-        )
+        verdict = verify(list(enumerate(scenario.job, start=1)), result.journal)
         counts = ", ".join(
             f"{verdict.count(kind)} {kind.value}" for kind in FAILURES
             if kind is not Kind.DAMAGED or verdict.count(kind)
