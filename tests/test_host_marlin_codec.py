@@ -196,7 +196,7 @@ def test_the_probe_is_always_refused_and_tells_the_counter(counter):
     event = printer.next_event()
     assert isinstance(event, LineRejected) and event.resend == counter + 1
     said = printer.data_to_send().decode().splitlines()
-    assert said == [f"Error:No Checksum with line number, Last Line: {counter}", f"Resend: {counter + 1}", "ok"]
+    assert said == [f"Error:checksum mismatch, Last Line: {counter}", f"Resend: {counter + 1}", "ok"]
     assert printer.last_n == counter
 
 
@@ -246,4 +246,7 @@ def test_the_probe_ends_a_partial_line_instead_of_joining_it():
     joined = MarlinProtocol()
     joined.last_n = 86
     joined.receive_data(line + PROBE[1:])
-    assert joined.next_event() == LineReceived("G1 X36 Y2 F6000", 0)  # why the line feed is there
+    # With both line feeds lost, the probe's own checksum is the joined line's last: refused,
+    # the counter unchanged (without it: LineReceived("G1 X36 Y2 F6000", 0), counter 0).
+    assert isinstance(joined.next_event(), LineRejected)
+    assert joined.last_n == 86

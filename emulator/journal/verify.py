@@ -205,6 +205,8 @@ def _damaged(
     was due, a journal line of its length that differs in a few characters (an extra, or what
     would look like a repeat of another command). Returns `found` with those extras replaced by
     the damaged commands, `again` without those lines, and the job indices they stand for."""
+    if not unrun:
+        return found, again, set()
     next_ran, upcoming = [0.0] * len(job), float("inf")  # journal line of the next command run
     for i in range(len(job) - 1, -1, -1):
         next_ran[i] = upcoming
@@ -250,10 +252,10 @@ def _looks_damaged(expected: str, ran: str) -> bool:
     firmware then runs the line only up to it."""
     if ran == expected:
         return False
-    if expected.startswith(ran) and len(ran.split()) >= 2:
-        return True
     # A short command is another command after a few changes: G1 X3 is four from G92 E0.
     limit = min(DAMAGED_AT_MOST, len(expected) // 4)
+    if len(ran) < len(expected) and len(ran.split()) >= 2:  # cut short at a damaged `*`
+        return _edit_distance(expected[: len(ran)], ran, limit) <= limit
     return _edit_distance(expected, ran, limit) <= limit
 
 

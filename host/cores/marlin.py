@@ -63,6 +63,10 @@ KEEPALIVE_INTERVAL = 2.0  # Marlin's DEFAULT_KEEPALIVE_INTERVAL; M113 changes it
 KEEPALIVE_MARGIN = 2.5  # intervals of silence before a printer that sends keepalives is silent
 OK_AFTER_RESEND = 0.5  # the ok comes in the same write as its Error and Resend lines
 HISTORY = 32  # completed lines kept for a resend
+# Probes answered, but never legibly, that the host sends per silent one before it gives up. A
+# probe's answer is three lines; at a bit error rate of 1e-3 each way half of them arrive
+# damaged, so eight in a row are no proof of a dead printer, but 64 (once in 10^19) are.
+GARBLED_PATIENCE = 8
 _M113 = re.compile(r"\s*[Mm]0*113(?!\d)(?:.*?[Ss]\s*(\d+(?:\.\d*)?))?")
 
 
@@ -140,6 +144,7 @@ class MarlinSender(CommandQueue):
         self._probe_wanted = True  # first of all: read the printer's counter
         self._probe_since: float | None = None  # a probe is out, sent then
         self._probe_streak = 0  # probes without a believable answer
+        self._probe_silences = 0  # of those, probes that drew no line at all
         self._ok_during_probe: tuple[str, ...] | None = None
         self._report: _LineErrorReport | None = None
         self._last_heard = -math.inf  # the last sign of work on what the host sent
@@ -220,6 +225,7 @@ class MarlinSender(CommandQueue):
             self._settle_report(now)  # its ok was lost
         elif self._probe_since is not None:
             self.stats.timeouts += 1
+            self._probe_silences += self._last_line < self._probe_since
             self._probe_since, self._ok_during_probe = None, None
             self._probe_wanted = True
         else:
@@ -264,10 +270,11 @@ class MarlinSender(CommandQueue):
         return encode_line(line.number, line.text)
 
     def _send_probe(self, now: float) -> bytes:
-        if self._probe_streak >= self.max_transmissions:
+        if (self._probe_silences >= self.max_transmissions
+                or self._probe_streak >= self.max_transmissions * GARBLED_PATIENCE):
             raise PrinterNotResponding(
-                f"no believable answer to {self._probe_streak} requests for the line number; "
-                "is a Marlin printer on the port?"
+                f"no believable answer to {self._probe_streak} requests for the line number "
+                f"({self._probe_silences} unanswered); is a Marlin printer on the port?"
             )
         self._probe_streak += 1
         self._probe_wanted = False
@@ -378,12 +385,12 @@ class MarlinSender(CommandQueue):
     def _printer_has(self, last: int, now: float, late_ok: tuple[str, ...] | None = None) -> None:
         """The printer's counter is `last`: it accepted every line up to it, none after."""
         if not self._synced:
-            self._probe_streak = 0
+            self._probe_streak = self._probe_silences = 0
             self._sync(last)
             return
         if last < self._confirmed:
             return  # older news (a delayed answer to an earlier probe)
-        self._probe_streak = 0
+        self._probe_streak = self._probe_silences = 0
         if last >= self._next_number:
             raise PrinterReset(
                 f"the printer counts line {last}, but this host has sent only up to "
