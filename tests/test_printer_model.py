@@ -2,6 +2,7 @@
 
 import pytest
 
+from fake_marlin.emulator.printer.gcode import parse
 from fake_marlin.emulator.printer.model import Printer, Reply, Sleep
 
 
@@ -164,3 +165,11 @@ def test_messages_and_debug():
     assert run(printer, "M118 E1 A1 pause", 0.0)[0].lines == ("echo://pause",)
     assert run(printer, "M111 S3", 0.0)[0].lines == ("echo:DEBUG:ECHO,INFO",)
     assert run(printer, "M111 S0", 0.0)[0].lines == ("echo:DEBUG:OFF",)
+
+
+@pytest.mark.parametrize("line", ["\x0e1190 G1 X35.5 Y22.5", "O101 G1 X5", "1190 G1 X1", "*G1 X2"])
+def test_a_line_that_does_not_start_with_its_command_is_unknown_and_does_not_move(line):
+    """Marlin reads the command letter where the line starts; a damaged leading N leaves junk
+    there, and the G1 behind it must not run (its numbered original is resent and runs)."""
+    command = parse(line)
+    assert command.code == "" and command.params == {}

@@ -1,5 +1,6 @@
 """Parsing one line of G-code the way Marlin's GCodeParser reads it."""
 
+import re
 from dataclasses import dataclass, field
 from typing import overload
 
@@ -33,9 +34,16 @@ class Command:
         return self.text[len(self.code):].strip() if self.code else ""
 
 
+# Marlin's GCodeParser takes the command letter where the line starts (after spaces and a line
+# number): a line whose first character is anything else is an unknown command, however much
+# G-code follows. (A damaged leading N makes such a line, `\x0e1190 G1 X35 ...`: it must not move.)
+_COMMAND_START = re.compile(r"\s*(?:N-?\d+\s*)?(?=[A-Za-z])")
+
+
 def parse(line: str) -> Command:
     text = strip_comment(line)
-    words = WORD.findall(text)
+    start = _COMMAND_START.match(text)
+    words = WORD.findall(text, start.end()) if start else []
     if not words or words[0][0].upper() not in "GMT" or (words[0][0].upper() != "T" and not words[0][1]):
         return Command(text, "", {})
     letter, number = words[0]
