@@ -15,6 +15,8 @@ from enum import IntEnum
 
 from cobs import cobs  # type: ignore[import-untyped]  # the package has no type hints
 
+from fake_marlin.wire.framing import Framer
+
 HEADER = struct.Struct("<BBBxHH")
 BUFFER_SIZE = 256  # COMM_STACK_BUFFER_SIZE: the MK20 reads at most this much of a frame
 MAX_DATA = 245  # what fits: 8 header bytes, the data, and COBS overhead in 255 bytes
@@ -185,6 +187,16 @@ def starts_with_header(data: bytes) -> bool | None:
     return header_checksum(task, comm_type, length, data_sum) == checksum
 
 
+def frame_end(buffer: bytes | bytearray, start: int, limit: int = BUFFER_SIZE) -> int | None:
+    """Just past the 0x00 that ends the frame starting at `start`, or `limit` bytes on if no
+    0x00 comes within `limit` + 1 bytes (readBytesUntil stops there; the rest is read as the
+    next frame); None while neither has come."""
+    marker = buffer.find(0, start, start + limit + 1)
+    if marker >= 0:
+        return marker + 1
+    return start + limit if len(buffer) - start > limit else None
+
+
 class FrameSplitter:
     """Cuts the byte stream at each 0x00. Like the MK20's readBytesUntil, a frame that runs
     past BUFFER_SIZE bytes is cut there, and its rest read as the next frame."""
@@ -197,13 +209,19 @@ class FrameSplitter:
         self._buffer += data
 
     def next_frame(self) -> bytes | None:
-        end = self._buffer.find(0, 0, self._limit + 1)
-        if end < 0:
+        end = frame_end(self._buffer, 0, self._limit)
+        if end is None:
             if len(self._buffer) < self._limit:
                 return None
-            end, skip = self._limit, 0
-        else:
-            skip = 1
+            # Exactly `limit` bytes and no 0x00: cut now, as readBytesUntil does, without
+            # waiting to see whether the next byte is the marker (frame_end, whose answer must
+            # not depend on how the stream was cut, waits for it).
+            end = self._limit
         frame = bytes(self._buffer[:end])
-        del self._buffer[:end + skip]
-        return frame
+        del self._buffer[:end]
+        return frame[:-1] if frame.endswith(MARKER) else frame
+
+
+# A frame is a unit both ways: the ESP's requests and the MK20's answers (wire/framing.py).
+FRAMES = Framer(frame_end, BUFFER_SIZE + 1)
+TO_PRINTER_UNITS = TO_HOST_UNITS = FRAMES

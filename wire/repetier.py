@@ -12,7 +12,9 @@ import re
 import struct
 from dataclasses import dataclass
 
+from fake_marlin.wire.framing import Framer
 from fake_marlin.wire.gcode import NUMBER, float32, number_text
+from fake_marlin.wire.lines import LINES, MAX_LINE, line_end
 
 MARKER = 0x0080  # bit 7: always set, so a binary command's first byte is never ASCII
 BIT_N, BIT_M, BIT_G = 0x0001, 0x0002, 0x0004
@@ -71,6 +73,27 @@ def command_size(prefix: bytes) -> int | None:
     if bits & BIT_TEXT:
         size += min(80, prefix[4] + 1)
     return size
+
+
+def unit_end(buffer: bytes, start: int) -> int | None:
+    """Where the command starting at `start` ends, as the firmware reads it (readFromSerial): a
+    binary command if its first byte has bit 7 set, its length from command_size; otherwise an
+    ASCII line, ended by a LF, CR or NUL. A NUL between commands (the 32 the host sends before a
+    resend) is a unit by itself: filler, which the firmware skips."""
+    first = buffer[start]
+    if first == 0:
+        return start + 1
+    if first & MARKER:
+        size = command_size(buffer[start:start + 5])
+        if size is None or start + size > len(buffer):
+            return None
+        return start + size
+    return line_end(buffer, start, b"\n\r\0")
+
+
+# No binary command is longer than a line may be (command_size's most is under 200 bytes).
+TO_PRINTER_UNITS = Framer(unit_end, MAX_LINE, filler=b"\r\n\0")
+TO_HOST_UNITS = LINES  # the printer's replies are lines
 
 
 def decode(frame: bytes) -> BinaryCommand:

@@ -2,6 +2,11 @@
 
 It sits below every protocol state machine, so the printer model never sees a fault, only the
 commands that survive it. Damage is drawn from a seeded generator: a run can be repeated.
+
+Unit faults (drop, duplicate, ...) act on what the protocol in use frames, each wire format's
+framer finding its units (wire/framing.py). The server says which protocol that is
+(set_protocol); until it knows, toward the printer, text lines and Ultimaker packets are units
+and any other bytes pass as they come.
 """
 
 import dataclasses
@@ -9,6 +14,9 @@ from dataclasses import dataclass, field
 from enum import Enum
 
 from fake_marlin.emulator.faults.rules import FaultKind, FaultPlan, FaultRule, stream_random
+from fake_marlin.wire import commstack, repetier, stk500, ultimaker, undetected
+from fake_marlin.wire.framing import Framer, split_units
+from fake_marlin.wire.lines import LINES
 
 
 class Direction(Enum):
@@ -57,6 +65,16 @@ RATE_KINDS = {  # the kinds of damage given as a rate, and the LineFaults field 
 }
 _LINE_ENDS = b"\r\n"
 
+# Each protocol's units: (toward the printer, toward the host). None: not known yet.
+FRAMERS: dict[str | None, tuple[Framer, Framer]] = {
+    None: (undetected.TO_PRINTER_UNITS, LINES),
+    "marlin": (LINES, LINES),
+    "ultimaker": (ultimaker.TO_PRINTER_UNITS, ultimaker.TO_HOST_UNITS),
+    "repetier": (repetier.TO_PRINTER_UNITS, repetier.TO_HOST_UNITS),
+    "commstack": (commstack.TO_PRINTER_UNITS, commstack.TO_HOST_UNITS),
+    "stk500": (stk500.TO_PRINTER_UNITS, stk500.TO_HOST_UNITS),
+}
+
 
 def parse_fault(spec: str, config: FaultConfig) -> FaultConfig:
     """Add `DIRECTION:KIND=RATE` (e.g. `to-printer:bit-errors=1e-4`) to a configuration."""
@@ -104,6 +122,20 @@ class FaultLayer:
         self._at_line_start = {direction: True for direction in Direction}
         self._partial = {direction: b"" for direction in Direction}
         self._link_rules = {d: self.plan.link_rules(d.value) for d in Direction}
+        self._framers = self._framers_for(None)
+
+    def set_protocol(self, protocol: str | None) -> None:
+        """The protocol the connection speaks from now on (None or "auto": not known yet).
+
+        Bytes of a unit not yet complete are framed anew by the new protocol's framer."""
+        self._framers = self._framers_for(None if protocol == "auto" else protocol)
+
+    @staticmethod
+    def _framers_for(protocol: str | None) -> dict[Direction, Framer]:
+        if protocol not in FRAMERS:
+            raise ValueError(f"no framer for protocol {protocol!r}")
+        to_printer, to_host = FRAMERS[protocol]
+        return {Direction.TO_PRINTER: to_printer, Direction.TO_HOST: to_host}
 
     def add_rule(self, rule: FaultRule) -> None:
         self.plan.add(rule)
@@ -135,13 +167,16 @@ class FaultLayer:
             for segment in segments
         ]
 
-    def _apply_rules(self, data: bytes, direction: Direction, rules) -> list[Segment]:
+    def _apply_rules(
+        self, data: bytes, direction: Direction, rules: list[tuple[int, FaultRule]]
+    ) -> list[Segment]:
         segments = [Segment()]
-        for unit in self._units(data, direction):
+        framer = self._framers[direction]
+        for unit in self._units(data, direction, framer):
             text = unit.decode("latin-1")
             out, pause, hang_up = unit, 0.0, None
             for index, rule in rules:
-                if not unit.strip(b"\r\n") or not self.plan.fires(index, text):
+                if framer.is_filler(unit) or not self.plan.fires(index, text):
                     continue
                 kind = rule.kind
                 if kind is FaultKind.DROP:
@@ -164,26 +199,10 @@ class FaultLayer:
                 break  # nothing more gets through a line that hangs up
         return [s for s in segments if s.data or s.pause or s.hang_up is not None]
 
-    def _units(self, data: bytes, direction: Direction) -> list[bytes]:
-        """Complete units in arrival order; a unit not yet complete waits for its rest."""
-        buffer = self._partial[direction] + data
-        units = []
-        position = 0
-        while position < len(buffer):
-            if direction is Direction.TO_PRINTER and buffer[position] == 0xFF:
-                end = _packet_end(buffer, position)
-            else:
-                newline = buffer.find(b"\n", position)
-                header = buffer.find(b"\xff\xff", position) if direction is Direction.TO_PRINTER else -1
-                if 0 <= header < (newline if newline >= 0 else len(buffer)):
-                    end = header  # text before a packet is a unit of its own
-                else:
-                    end = newline + 1 if newline >= 0 else None
-            if end is None:
-                break
-            units.append(buffer[position:end])
-            position = end
-        self._partial[direction] = buffer[position:]
+    def _units(self, data: bytes, direction: Direction, framer: Framer) -> list[bytes]:
+        """Complete units in arrival order; a unit not yet complete waits for its rest (never
+        more than the framer's max_unit bytes)."""
+        units, self._partial[direction] = split_units(self._partial[direction] + data, framer)
         return units
 
     def _damage(self, data: bytes, direction: Direction, faults: LineFaults) -> bytes:
@@ -224,16 +243,3 @@ class FaultLayer:
             start = end + 1
         return bytes(out)
 
-
-def _packet_end(buffer: bytes, start: int) -> int | None:
-    """Where the Ultimaker packet starting at `start` ends, or None if it is not all here.
-
-    A lone 0xFF, or a header whose length is impossible, ends at once as a unit of noise.
-    """
-    if len(buffer) < start + 4:
-        return None if buffer[start:start + 2] in (b"\xff", b"\xff\xff") else start + 1
-    if buffer[start + 1] != 0xFF:
-        return start + 1
-    length = buffer[start + 3]
-    end = start + 4 + length + 2
-    return end if end <= len(buffer) else None

@@ -11,13 +11,14 @@ answer() is the reply stk500boot.c builds for a message; send(Reply) frames it f
 
 from dataclasses import dataclass
 from enum import Enum, auto
-from functools import reduce
-from operator import xor
 
-MESSAGE_START = 0x1B
-TOKEN = 0x0E
-HEADER_SIZE = 5  # start, sequence number, size high, size low, token
-MAX_BODY = 285  # stk500boot.c's msgBuffer; a longer body would overrun it on the board
+# The message's wire facts are shared (the fault layer frames messages with them).
+from fake_marlin.wire.stk500 import HEADER_SIZE as HEADER_SIZE
+from fake_marlin.wire.stk500 import MAX_BODY as MAX_BODY
+from fake_marlin.wire.stk500 import MESSAGE_START as MESSAGE_START
+from fake_marlin.wire.stk500 import TOKEN as TOKEN
+from fake_marlin.wire.stk500 import checksum as checksum
+from fake_marlin.wire.stk500 import encode_message as encode_message
 
 CMD_SIGN_ON = 0x01
 CMD_SET_PARAMETER = 0x02
@@ -53,18 +54,6 @@ LOW_FUSE, HIGH_FUSE, EXTENDED_FUSE = 0xFF, 0xD8, 0xFD
 SPI_READ_SIGNATURE = 0x30
 SPI_READ_LOW_FUSE = 0x50
 SPI_READ_HIGH_FUSE = 0x58
-
-
-def checksum(data: bytes | bytearray) -> int:
-    return reduce(xor, data, 0)
-
-
-def encode_message(seq: int, body: bytes) -> bytes:
-    """One message on the wire, either way: `1B seq sizeHi sizeLo 0E body xor`."""
-    if not 0 <= seq <= 0xFF or len(body) > 0xFFFF:
-        raise ValueError(f"no STK500v2 message has sequence number {seq} and {len(body)} bytes")
-    message = bytes((MESSAGE_START, seq, len(body) >> 8, len(body) & 0xFF, TOKEN)) + body
-    return message + bytes((checksum(message),))
 
 
 def _signature_byte(index: int) -> int:

@@ -104,15 +104,23 @@ class PrinterServer:
 
     def _make_session(self, protocol: str, reason: str) -> Session | DetectingSession:
         if protocol == "auto":
-            return DetectingSession(lambda detected: self._protocol_session(detected.value, reason))
+            return self._detecting_session(reason)
         return self._protocol_session(protocol, reason)
 
+    def _detecting_session(self, reason: str, bootloader: bool = True) -> DetectingSession:
+        self.faults.set_protocol(None)  # until detection decides, no framer of its own
+        return DetectingSession(
+            lambda detected: self._protocol_session(detected.value, reason), bootloader=bootloader
+        )
+
     def _protocol_session(self, protocol: str, reason: str) -> Session:
+        # Unit faults act on this protocol's units from now on, both ways.
+        self.faults.set_protocol(protocol)
         if protocol == "stk500":
             # LEAVE starts the firmware, whose protocol the bytes after it choose.
-            return Stk500Session(self._send, lambda: DetectingSession(
-                lambda detected: self._protocol_session(detected.value, reason), bootloader=False
-            ))
+            return Stk500Session(
+                self._send, lambda: self._detecting_session(reason, bootloader=False)
+            )
         if protocol == "marlin":
             return MarlinSession(
                 self.printer, self.journal, self._send, self.config.advanced_ok, reason,
