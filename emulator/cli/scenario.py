@@ -1,4 +1,5 @@
-"""`fake-marlin scenario run PATH...`: run scenarios with our host client and check them."""
+"""`fake-marlin scenario run PATH...`: run scenarios with our host client and check them;
+`fake-marlin scenario fuzz`: run random fault mixes (emulator/scenario/fuzz.py, campaign.py)."""
 
 import argparse
 import json
@@ -6,6 +7,7 @@ import sys
 from pathlib import Path
 
 from fake_marlin.emulator.scenario.definition import ScenarioError, load
+from fake_marlin.emulator.scenario.fuzz import PROTOCOLS as FUZZ_PROTOCOLS
 from fake_marlin.emulator.scenario.run import report, run_scenario
 
 
@@ -36,7 +38,10 @@ def main(argv: list[str]) -> int:
         help="the host that prints the job: fake-marlin's own client (builtin)",
     )
     run.add_argument("--json", action="store_true", help="one JSON object per scenario instead")
+    fuzz = _add_fuzz_parser(commands)
     args = parser.parse_args(argv)
+    if args.command == "fuzz":
+        return fuzz_main(args, fuzz)
     try:
         scenarios = [load(path) for path in scenario_files(args.paths)]
     except ScenarioError as error:
@@ -62,3 +67,88 @@ def main(argv: list[str]) -> int:
     if not args.json:
         print(f"scenarios: {passed} passed, {failed} failed")
     return 0 if failed == 0 else 1
+
+
+
+def _add_fuzz_parser(commands) -> argparse.ArgumentParser:
+    fuzz = commands.add_parser(
+        "fuzz", help="run random fault mixes with the built-in host; write the failing ones out",
+        description="Generate RUNS random fault mixes per protocol (seeded: the same seed gives "
+        "the same cases), run each with the built-in host, and write every failing case to "
+        "DIR/<protocol>-<seed>-<n>.toml, whose first line says why it failed; "
+        "`fake-marlin scenario run` on that file fails the same way. Exit 1 if any case failed. "
+        "Files of earlier campaigns in DIR are overwritten by the same names, never removed.",
+    )
+    fuzz.add_argument("--protocol", required=True, choices=[*FUZZ_PROTOCOLS, "all"],
+                      help="the protocol to fuzz, or all four")
+    fuzz.add_argument("--runs", type=int, required=True, help="cases per protocol")
+    fuzz.add_argument("--seed", type=int, required=True, help="the campaign's seed (0 or more)")
+    fuzz.add_argument("--out", required=True, metavar="DIR", help="where failing cases are written")
+    fuzz.add_argument("--jobs", type=int, default=None,
+                      help="worker processes (default: one per CPU)")
+    fuzz.add_argument("--moves", type=int, default=None,
+                      help="moves in every job (default: 200 to 400, drawn per case)")
+    fuzz.add_argument("--keep-all", action="store_true",
+                      help="write passing cases too (their first line: PASS)")
+    fuzz.add_argument("--json", action="store_true", help="one JSON object per protocol summary")
+    return fuzz
+
+
+def fuzz_main(args, parser) -> int:
+    from fake_marlin.emulator.scenario.campaign import default_jobs, run_campaign
+
+    for name, least in (("runs", 1), ("seed", 0), ("jobs", 1), ("moves", 1)):
+        value = getattr(args, name)
+        if value is not None and value < least:
+            parser.error(f"--{name} must be at least {least}, not {value}")
+    out = Path(args.out)
+    if out.exists() and not out.is_dir():
+        parser.error(f"--out {out}: cannot make the directory: a file of that name is in the way")
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as error:
+        parser.error(f"--out {out}: cannot make the directory: {error.strerror or error}")
+    protocols = FUZZ_PROTOCOLS if args.protocol == "all" else (args.protocol,)
+    progress = _Progress() if sys.stderr.isatty() else None
+    try:
+        summaries = run_campaign(
+            protocols, args.seed, args.runs, out, jobs=args.jobs or default_jobs(),
+            moves=args.moves, keep_all=args.keep_all, progress=progress,
+        )
+    except KeyboardInterrupt:
+        print("\nfake-marlin scenario fuzz: interrupted", file=sys.stderr)
+        return 130
+    finally:
+        if progress is not None:
+            progress.clear()
+    for summary in summaries:
+        if args.json:
+            print(json.dumps(summary.as_json()))
+            continue
+        for failure in summary.failures:
+            print(f"FAIL  {failure['case']} ({failure['kind']}): {failure['reason']}\n"
+                  f"      {failure['file']}")
+        print(summary.line(), flush=True)
+    failed = sum(summary.failed for summary in summaries)
+    if not args.json and len(summaries) > 1:
+        runs = sum(summary.runs for summary in summaries)
+        print(f"fuzz: {runs} runs, {runs - failed} passed, {failed} failed")
+    return 1 if failed else 0
+
+
+class _Progress:
+    """One line on the terminal, rewritten: protocol, cases done of all, failures so far."""
+
+    def __init__(self) -> None:
+        self._width = 0
+
+    def __call__(self, protocol: str, done: int, total: int, failed: int) -> None:
+        text = f"fuzz {protocol}: {done}/{total} done, {failed} failed"
+        sys.stderr.write("\r" + text.ljust(self._width))
+        sys.stderr.flush()
+        self._width = len(text)
+
+    def clear(self) -> None:
+        if self._width:
+            sys.stderr.write("\r" + " " * self._width + "\r")
+            sys.stderr.flush()
