@@ -222,6 +222,15 @@ class StreamingClient(Client):
     """A client whose core is a CommandQueue: commands are submitted, streamed and completed."""
 
     _core: QueueCore
+    # How many completed commands may not have run yet: where an acknowledgement means
+    # "queued", it runs ahead of execution by what the printer holds (Repetier).
+    acknowledged_ahead: ClassVar[int] = 0
+
+    @property
+    def known_run(self) -> int:
+        """Commands completed that the printer is sure to have run (or begun): where a host
+        that lost the port resumes. What comes after may run twice; nothing is lost."""
+        return max(0, self.completed - self.acknowledged_ahead)
 
     @property
     def stats(self) -> Stats:

@@ -174,7 +174,7 @@ async def _print_reconnecting(link, stream, scenario: Scenario, options, job: li
         except BaseException as raised:  # noqa: BLE001 - only a lost line is retried
             if scenario.host.reconnect_after is None or not isinstance(sole_exception(raised), ConnectionLost):
                 raise
-        job = job[host.completed if host is not None else 0:]
+        job = job[host.known_run if isinstance(host, StreamingClient) else 0:]
         await trio.sleep(scenario.host.reconnect_after)
         while not link.connected:
             await trio.sleep(0.1)
@@ -184,7 +184,7 @@ async def _print_reconnecting(link, stream, scenario: Scenario, options, job: li
 async def _print_until_disconnect(stream, scenario: Scenario, options, job: list[str], after: int):
     """Print until `after` commands are acknowledged, then drop the port with packets still in
     flight, as a host that crashes or loses its cable does. Returns what it must still send:
-    everything not acknowledged, since it cannot know what else the printer ran."""
+    everything not known to have run, since it cannot know what else the printer ran."""
     async with connect(stream, scenario.host_protocol, options) as host:
         # Scenarios that drop the port mid-print are for the streaming protocols (the loader
         # refuses a reconnect for CommStack, which uploads its job whole).
@@ -196,7 +196,7 @@ async def _print_until_disconnect(stream, scenario: Scenario, options, job: list
         with trio.move_on_after(60):
             while host.completed < after:
                 await trio.sleep(0.01)
-        done = host.completed
+        done = host.known_run
     return job[done:]
 
 

@@ -13,6 +13,8 @@ class RepetierClient(StreamingClient):
     """Repetier's protocol: binary commands where they fit, `ok <N>` when queued."""
 
     protocol = "repetier"
+    # `ok N` comes when N is queued: one command waits in the firmware's buffer, one runs.
+    acknowledged_ahead = 2
     check_command = staticmethod(repetier.check_command)
 
     def _open(self, options: ClientOptions) -> None:
