@@ -11,6 +11,7 @@ from hypothesis import strategies as st
 
 from fake_marlin.emulator.faults.layer import FaultConfig, parse_fault
 from fake_marlin.emulator.journal.verify import is_host_command
+from fake_marlin.emulator.printer.failures import Failure, FailureKind, apply
 from fake_marlin.emulator.printer.model import Printer, PrinterConfig
 from fake_marlin.emulator.protocols.commstack import (
     CommStackProtocol,
@@ -18,17 +19,22 @@ from fake_marlin.emulator.protocols.commstack import (
     RequestReceived,
 )
 from fake_marlin.emulator.server.lifecycle import ServerConfig
+from fake_marlin.host.clients.commstack import CommStackClient
 from fake_marlin.host.connect import connect
-from fake_marlin.host.cores.commstack import CommStackEndpoint
+from fake_marlin.host.cores.commstack import SYNC_TASKS, CommStackEndpoint, Outcome, Reply
 from fake_marlin.wire.commstack import (
+    HEADER,
+    MAX_DATA,
     BadData,
     BadHeader,
     CommType,
     FrameSplitter,
     Packet,
     Task,
+    data_checksum,
     decode_frame,
     encode_packet,
+    header_checksum,
     starts_with_header,
 )
 from tests.conftest import running_printer
@@ -117,6 +123,64 @@ def test_a_bad_data_checksum_is_answered_failed_and_a_bad_header_not_at_all():
     assert mk20.data_to_send() == encode_packet(Packet(Task.PING, CommType.RESPONSE_FAILED))
 
 
+def raw_frame(task: int, data: bytes, comm_type: int = CommType.REQUEST) -> bytes:
+    """A packet on the wire as encode_packet makes it, but of any length."""
+    from cobs import cobs
+
+    sum_ = data_checksum(data)
+    checksum = header_checksum(task, comm_type, len(data), sum_)
+    header = HEADER.pack(task, comm_type, len(data), sum_, checksum)
+    return cobs.encode(header + data) + b"\0"
+
+
+def test_max_data_is_the_most_a_request_carries_for_the_mk20_to_answer_it_once():
+    """The MK20 reads a frame with readBytesUntil(0, buffer, 256) on the Teensy 3.1 core, which
+    keeps the buffer's last byte for a NUL: 255 bytes at most. 245 data bytes make a 254-byte
+    frame, read with its 0x00; 246 make 255, whose 0x00 is left over and read as an empty frame:
+    the request runs, and a ResponseFailed follows its answer."""
+    mk20 = CommStackProtocol()
+    wire = encode_packet(Packet(Task.FILE_SAVE_DATA, CommType.REQUEST, b"x" * MAX_DATA))
+    assert len(wire) == 255
+    mk20.receive_data(wire)
+    assert mk20.next_event() == RequestReceived(Task.FILE_SAVE_DATA, b"x" * MAX_DATA)
+    assert mk20.next_event() is None and mk20.data_to_send() == b""
+    wire = raw_frame(Task.FILE_SAVE_DATA, b"y" * (MAX_DATA + 1))
+    assert len(wire) == 256
+    mk20.receive_data(wire)
+    assert mk20.next_event() == RequestReceived(Task.FILE_SAVE_DATA, b"y" * (MAX_DATA + 1))
+    assert mk20.next_event() == FrameRejected("not a COBS frame", answered=True)
+    failed = encode_packet(Packet(Task.FILE_SAVE_DATA, CommType.RESPONSE_FAILED))
+    assert mk20.data_to_send() == failed
+    with pytest.raises(ValueError):
+        encode_packet(Packet(Task.FILE_SAVE_DATA, CommType.REQUEST, b"y" * (MAX_DATA + 1)))
+
+
+def test_a_bad_header_is_copied_in_before_it_is_checked():
+    """packetReceived() memcpy()s a frame's header into the current one first: its task is the
+    one a later undecodable frame is answered under."""
+    mk20 = CommStackProtocol()
+    mk20.receive_data(encode_packet(PING))
+    assert mk20.next_event() == RequestReceived(Task.PING, b"")
+    from cobs import cobs
+
+    damaged = HEADER.pack(Task.FILE_CLOSE, CommType.REQUEST, 0, 0, 0x1234)  # a wrong checksum
+    mk20.receive_data(cobs.encode(damaged) + b"\0\0")
+    assert mk20.next_event() == FrameRejected("header checksum", answered=False)
+    assert mk20.next_event() == FrameRejected("not a COBS frame", answered=True)
+    assert mk20.data_to_send() == encode_packet(Packet(Task.FILE_CLOSE, CommType.RESPONSE_FAILED))
+
+
+def test_a_read_ends_when_no_byte_has_come_for_a_second():
+    """Stream's timeout (1 s, which the MK20 keeps): a frame whose 0x00 was lost is read then,
+    whole, rather than with the next frame."""
+    mk20 = CommStackProtocol()
+    mk20.receive_data(encode_packet(PING)[:-1])
+    assert mk20.next_event() is None and mk20.reading
+    mk20.read_timed_out()
+    assert mk20.next_event() == RequestReceived(Task.PING, b"")
+    assert not mk20.reading
+
+
 # -- the MK20's tasks -----------------------------------------------------------------------
 async def exchange(host, packet: Packet) -> Packet:
     await host.send_all(encode_packet(packet))
@@ -172,6 +236,23 @@ async def test_rle16_data_is_expanded(autojump_clock, sd_printer, tmp_path):
     assert (tmp_path / "ui.min").read_bytes() == b"ABABABCD"
 
 
+async def test_a_request_whose_marker_is_lost_is_answered_once_the_line_is_quiet(autojump_clock):
+    async with running_printer(ServerConfig(protocol="commstack")) as printer:
+        host = printer.link.open_host()
+        await host.send_all(encode_packet(Packet(Task.PING, CommType.RESPONSE_SUCCESS)))
+        await trio.sleep(0.5)
+        await host.send_all(encode_packet(Packet(Task.GET_SYSTEM_INFO, CommType.REQUEST))[:-1])
+        started = trio.current_time()
+        buffer = b""
+        with trio.fail_after(5):
+            while not any(
+                isinstance(p := decode_frame(f), Packet) and p.task == Task.GET_SYSTEM_INFO
+                for f in frames(buffer)
+            ):
+                buffer += await host.receive_some()
+        assert 1.0 <= trio.current_time() - started < 1.1
+
+
 async def test_the_mk20_pings_until_someone_answers(autojump_clock):
     async with running_printer(ServerConfig(protocol="commstack")) as printer:
         host = printer.link.open_host()
@@ -182,6 +263,47 @@ async def test_the_mk20_pings_until_someone_answers(autojump_clock):
         await trio.sleep(20)
         await host.send_all(encode_packet(PING))
         assert [decode_frame(f).comm_type for f in frames(await host.receive_some())] == [CommType.RESPONSE_SUCCESS]
+
+
+async def test_a_ping_from_the_host_stops_the_mk20s_pings_too(autojump_clock):
+    """Application::runTask: a Ping request sets _espOK, as the ESP's answer to a ping does."""
+    async with running_printer(ServerConfig(protocol="commstack")) as printer:
+        host = printer.link.open_host()
+        await trio.sleep(1)
+        await host.send_all(encode_packet(PING))
+        await trio.sleep(20)
+        received = [decode_frame(f) for f in frames(await host.receive_some())]
+    assert [p.comm_type for p in received] == [CommType.REQUEST, CommType.RESPONSE_SUCCESS]
+
+
+async def test_a_pulled_card_takes_the_file_being_written_and_the_file_just_stored(
+    autojump_clock, sd_printer, tmp_path
+):
+    """After sd-removed nothing is printed or written: PrintProjectWithID without a name (the
+    file just stored) is refused, even once M21 mounts a card again, and a file that was open
+    for writing takes no more data (success, as writeToFile answers, at an unchanged length)."""
+    async with running_printer(ServerConfig(protocol="commstack"), sd_printer) as printer:
+        host = printer.link.open_host()
+        request = lambda task, data=b"": exchange(host, Packet(task, CommType.REQUEST, data))  # noqa: E731
+        await request(Task.FILE_OPEN_FOR_WRITE, b'{"localFilePath":"a.gcode"}\0')
+        await request(Task.FILE_SAVE_DATA, b"M117 a\n")
+        assert (await request(Task.FILE_CLOSE)).data == struct.pack("<I", 7)
+        await request(Task.FILE_OPEN_FOR_WRITE, b'{"localFilePath":"b.gcode"}\0')
+        assert (await request(Task.FILE_SAVE_DATA, b"M117 b\n")).data == struct.pack("<I", 7)
+        apply(sd_printer, Failure(FailureKind.SD_REMOVED), trio.current_time())
+        assert (await request(Task.PRINT_PROJECT_WITH_ID)).comm_type == CommType.RESPONSE_FAILED
+        saved = await request(Task.FILE_SAVE_DATA, b"M117 c\n")
+        assert saved == Packet(Task.FILE_SAVE_DATA, CommType.RESPONSE_SUCCESS, struct.pack("<I", 7))
+        await request(Task.RUN_PRINTER_GCODE, b"M21\0")
+        assert (await request(Task.FILE_SAVE_DATA, b"M117 d\n")).data == struct.pack("<I", 7)
+        await request(Task.FILE_CLOSE)
+        assert (await request(Task.PRINT_PROJECT_WITH_ID)).comm_type == CommType.RESPONSE_FAILED
+        named = await request(Task.PRINT_PROJECT_WITH_ID, b"a.gcode\0")
+        assert named.comm_type == CommType.RESPONSE_SUCCESS
+        await trio.sleep(5)
+        journal = printer.journal
+    assert (tmp_path / "b.gcode").read_bytes() == b"M117 b\n"
+    assert [line for line in journal if line.startswith("M117")] == ["M117 a"]
 
 
 # -- the host -------------------------------------------------------------------------------
@@ -209,6 +331,47 @@ async def test_the_host_uploads_and_prints_a_job_exactly_once(autojump_clock, sd
     assert [line for line in journal if not is_host_command(line)] == JOB
     if faults:
         assert summary.resends + summary.timeouts > 0
+
+
+async def test_the_host_follows_the_print_until_the_printer_says_it_is_done(autojump_clock):
+    """An answer to M27 that is neither `Not SD printing` nor progress (a late answer to
+    `M27 C`, or one damaged past the checksum) is asked again, not taken for the end."""
+    client = CommStackClient(printer_link_stub())
+    answers = iter([
+        b"Current file: JOB.GCO job.gcode", b"SD printing byte 5/10",
+        b"SD printine byte 7<10", b"Not SD printing",
+    ])
+    asked: list[bytes] = []
+
+    async def run(steps):
+        try:
+            request = next(steps)
+            while True:
+                if request.task in SYNC_TASKS:
+                    reply = Reply(Outcome.SUCCESS)
+                else:
+                    asked.append(request.data)
+                    reply = Reply(Outcome.SUCCESS, next(answers))
+                request = steps.send(reply)
+        except StopIteration as done:
+            return done.value
+
+    client._run = run
+    progress: list[int] = []
+    await client.wait_for_print(progress.append)
+    assert asked == [b"M27\0"] * 4 and progress == [5]
+
+
+def printer_link_stub():
+    class Stream:
+        async def send_all(self, data: bytes) -> None:
+            pass
+
+        async def receive_some(self, max_bytes: int | None = None) -> bytes:
+            await trio.sleep_forever()
+            return b""
+
+    return Stream()
 
 
 @given(packets)

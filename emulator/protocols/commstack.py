@@ -1,23 +1,34 @@
 """The MK20's side of CommStack, as a sans-IO state machine (Printrhub's mk20 CommStack.cpp).
 
-Frames are read one at a time. A request whose data checksum is wrong is answered at once with
-an empty ResponseFailed for its task; a frame whose header checksum is wrong is dropped without
-a word; a frame that is no COBS at all (or empty, as a stray 0x00 makes it) is answered with a
-ResponseFailed for the task of the last packet, as the firmware reuses its last header. Only
+Frames are read one at a time, as CommStack::process() reads them: `readBytesUntil(0, buffer,
+256)` on the Teensy 3.1 core, which keeps the last byte of the buffer for a NUL, so a read ends
+at a 0x00 (taken from the line), after 255 bytes (the next byte, even a 0x00, is left for the
+next read: a 255-byte frame is followed by an empty one), or when no byte has come for the
+stream's timeout, 1 s (`read_timed_out`: the bytes so far are a frame). Each frame is copied
+into the current header before its checksum is checked, so the task of any frame that decodes,
+sound or not, is the one a ResponseFailed is sent under next. A request whose data checksum is
+wrong is answered at once with an empty ResponseFailed for its task; a frame whose header
+checksum is wrong is dropped without a word; a frame that is no COBS at all (or empty, as a
+stray 0x00 makes it) is answered with a ResponseFailed for that current header's task. Only
 requests are answered; responses from the other side are passed on and never answered.
 """
 
 from dataclasses import dataclass
 
+from cobs import cobs  # type: ignore[import-untyped]  # the package has no type hints
+
 from fake_marlin.wire.commstack import (
+    BUFFER_SIZE,
     BadData,
     BadHeader,
     CommType,
-    FrameSplitter,
     Packet,
     decode_frame,
     encode_packet,
 )
+
+READ_LIMIT = BUFFER_SIZE - 1  # Teensy's Stream::readBytesUntil(t, buf, n) reads n - 1 at most
+READ_TIMEOUT = 1.0  # Stream's default timeout, which the MK20 never changes: s between bytes
 
 
 # Events out.
@@ -51,14 +62,57 @@ class Response:
     data: bytes = b""
 
 
+class FrameReader:
+    """Serial3.readBytesUntil(0, _receiveBuffer, COMM_STACK_BUFFER_SIZE), one call per frame."""
+
+    def __init__(self) -> None:
+        self._buffer = bytearray()
+        self._timed_out = False
+
+    @property
+    def reading(self) -> bool:
+        """Bytes of a frame have come, and its end has not: the read waits for more."""
+        return bool(self._buffer)
+
+    def receive_data(self, data: bytes) -> None:
+        self._buffer += data
+        self._timed_out = False
+
+    def time_out(self) -> None:
+        """No byte has come for READ_TIMEOUT: the read ends with what it has."""
+        self._timed_out = bool(self._buffer)
+
+    def next_frame(self) -> bytes | None:
+        end = self._buffer.find(0, 0, READ_LIMIT)
+        if end >= 0:
+            frame = bytes(self._buffer[:end])
+            del self._buffer[:end + 1]
+        elif len(self._buffer) >= READ_LIMIT or self._timed_out:
+            frame = bytes(self._buffer[:READ_LIMIT])
+            del self._buffer[:READ_LIMIT]  # the byte after a full buffer is the next read's
+            self._timed_out = False
+        else:
+            return None
+        return frame
+
+
 class CommStackProtocol:
     def __init__(self) -> None:
-        self._frames = FrameSplitter()
+        self._frames = FrameReader()
         self._last_task = 0  # _currentHeader.taskID: what an undecodable frame is answered as
         self._output = bytearray()
 
+    @property
+    def reading(self) -> bool:
+        """A frame has begun and not ended: `read_timed_out` is due if nothing more comes."""
+        return self._frames.reading
+
     def receive_data(self, data: bytes) -> None:
         self._frames.receive_data(data)
+
+    def read_timed_out(self) -> None:
+        """READ_TIMEOUT has passed since the last byte: the frame begun ends here."""
+        self._frames.time_out()
 
     def next_event(self) -> Event | None:
         frame = self._frames.next_frame()
@@ -71,6 +125,9 @@ class CommStackProtocol:
                 return RequestReceived(decoded.task, decoded.data)
             return ResponseReceived(decoded)
         if isinstance(decoded, BadHeader):
+            # packetReceived() copies the header in before it checks it: whatever the first
+            # byte now says is the task the next ResponseFailed goes out under.
+            self._last_task = _first_byte(frame, self._last_task)
             return FrameRejected("header checksum", answered=False)
         if isinstance(decoded, BadData):
             self._last_task = decoded.task
@@ -94,3 +151,11 @@ class CommStackProtocol:
         self._output.clear()
         return data
 
+
+def _first_byte(frame: bytes, default: int) -> int:
+    """The first byte of a COBS frame once decoded (`default` if it decodes to nothing)."""
+    try:
+        raw: bytes = cobs.decode(frame)
+    except cobs.DecodeError:
+        return default
+    return raw[0] if raw else default

@@ -1,7 +1,8 @@
 """One boot of a Printrbot Simple 2016 as its ESP8266 sees it: the MK20 side of CommStack.
 
 Tasks answered (Printrhub's mk20 Application.cpp, ReceiveSDCardFile and DownloadFileController):
-- Ping: the MK20's build number (int32); it also pings the host every 5 s until answered.
+- Ping: the MK20's build number (int32); it also pings the host every 5 s until the host
+  answers one or pings it.
 - GetSystemInfo: the 128-byte SystemInfo struct the ESP keeps.
 - FileOpenForWrite (JSON `localFilePath`, `compression` 1 = none, 2 = RLE16, or a bare path),
   FileSetSize, FileSaveData (data), FileClose: a file on the SD card. The announced size (JSON
@@ -13,6 +14,12 @@ Tasks answered (Printrhub's mk20 Application.cpp, ReceiveSDCardFile and Download
   what they printed (the MK20 has no handler; a host needs one to reach the printer).
 - PrintProjectWithID: print a stored file (its path, or the file just stored), from the card.
 Anything else is answered with an empty ResponseSuccess, as the firmware answers any request.
+
+The SD card can be pulled (the sd-removed fault): from then on nothing is written and nothing
+printed from it. A file open for writing stays lost, as the firmware's File does, even once a
+card is mounted again: FileSaveData is still answered with success (writeToFile ignores what
+the write returns) and the length, which no longer grows; and "the file just stored" is
+forgotten, since the card it was stored on is gone.
 """
 
 import json
@@ -28,6 +35,7 @@ from fake_marlin.emulator.journal.writer import Journal
 from fake_marlin.emulator.printer.model import Printer
 from fake_marlin.emulator.printer.sdcard import OpenFile
 from fake_marlin.emulator.protocols.commstack import (
+    READ_TIMEOUT,
     CommStackProtocol,
     RequestReceived,
     Response,
@@ -48,6 +56,7 @@ class _Upload:
     path: Path
     compression: int
     written: int = 0
+    lost: bool = False  # its card was pulled: the File writes nothing any more
 
 
 class CommStackSession:
@@ -69,6 +78,8 @@ class CommStackSession:
         self._last_size = 0
         self._host_answered_ping = False
         self._paused_until = -math.inf
+        self._last_byte_at = -math.inf
+        self._bytes_came = trio.Event()
 
     def boot(self) -> None:
         pass  # the MK20 speaks first only with its pings
@@ -81,6 +92,12 @@ class CommStackSession:
 
     def feed(self, data: bytes) -> None:
         self.protocol.receive_data(data)
+        self._last_byte_at = trio.current_time()
+        self._read_frames()
+        if self.protocol.reading:
+            self._bytes_came.set()
+
+    def _read_frames(self) -> None:
         while (event := self.protocol.next_event()) is not None:
             if isinstance(event, RequestReceived):
                 self._requests_in.send_nowait(event)
@@ -97,6 +114,20 @@ class CommStackSession:
         async with trio.open_nursery() as nursery:
             nursery.start_soon(self._serve)
             nursery.start_soon(self._ping_host)
+            nursery.start_soon(self._time_out_reads)
+
+    async def _time_out_reads(self) -> None:
+        """readBytesUntil gives up on a frame when no byte has come for a second: what it has
+        read by then is the frame (one whose 0x00 was lost is read whole)."""
+        while True:
+            await self._bytes_came.wait()
+            self._bytes_came = trio.Event()
+            while self.protocol.reading:
+                deadline = self._last_byte_at + READ_TIMEOUT
+                await trio.sleep_until(deadline)
+                if self.protocol.reading and self._last_byte_at + READ_TIMEOUT <= deadline:
+                    self.protocol.read_timed_out()
+                    self._read_frames()
 
     async def _ping_host(self) -> None:
         """Application::pingESP(): every 5 s until the other side answers."""
@@ -126,6 +157,7 @@ class CommStackSession:
         await self._run_gcode(line)
 
     async def _run_gcode(self, text: str) -> list[str]:
+        self._check_card()
         self._before_command(text)
         if self.printer.halted:
             return []
@@ -136,7 +168,9 @@ class CommStackSession:
     # -- the tasks -----------------------------------------------------------------------
     async def _handle(self, request: RequestReceived) -> None:
         task, data = request.task, request.data
+        self._check_card()
         if task == Task.PING:
+            self._host_answered_ping = True  # a ping from the ESP stops the MK20's too
             self._reply(task, data=struct.pack("<i", BUILD_NUMBER))
         elif task == Task.GET_SYSTEM_INFO:
             self._reply(task, data=self._system_info())
@@ -157,6 +191,14 @@ class CommStackSession:
             self._reply(task, self._print_file(data))
         else:
             self._reply(task)
+
+    def _check_card(self) -> None:
+        """A card that has been pulled takes the file being written and the one just stored
+        with it (checked before every request and command, so before any M21 mounts one)."""
+        if not self.printer.sd.mounted:
+            if self._upload is not None:
+                self._upload.lost = True
+            self._last_stored = None
 
     def _system_info(self) -> bytes:
         config = self.printer.config
@@ -208,6 +250,8 @@ class CommStackSession:
             data = b"".join(
                 data[i + 1:i + 3] * data[i] for i in range(0, len(data), 3)
             )
+        if upload.lost:
+            return True  # the write fails, and writeToFile() answers success regardless
         try:
             with open(upload.path, "ab") as target:
                 target.write(data)
@@ -217,8 +261,10 @@ class CommStackSession:
         return True
 
     def _close(self) -> None:
-        if self._upload is not None:
-            self._last_stored, self._last_size = self._upload.path, self._upload.written
+        upload = self._upload
+        if upload is not None:
+            self._last_stored = None if upload.lost else upload.path
+            self._last_size = upload.written
             self._upload = None
 
     async def _run_printer_gcode(self, data: bytes) -> None:
@@ -240,7 +286,9 @@ class CommStackSession:
             path = self._card_path(name)
         else:
             path = self._last_stored
-        if path is None or sd.root is None or not path.is_file() or self.printer.halted:
+        if path is None or sd.root is None or not sd.mounted or not path.is_file():
+            return False  # (a card pulled has no files, and forgot the file just stored)
+        if self.printer.halted:
             return False
         if sd.printing and sd.selected is not None and sd.selected.path == path:
             return True  # asked again (its answer was lost): it is printing already

@@ -1,13 +1,17 @@
 """The trio client for a Printrbot's CommStack: store a job on the printer's SD card, print it.
 
 Uploading, as the ESP pushes a file (Printrhub's PushFileToSDCard): FileOpenForWrite (JSON with
-the path, size and no compression), FileSetSize, FileSaveData in 128-byte chunks, one at a
-time, FileClose. Then PrintProjectWithID with the path starts the print, and the client follows
-it with M27 through RunPrinterGCode until the printer says it is done. The rules that make each
-step happen exactly once are sans-IO, in fake_marlin.host.cores.commstack; this client carries
-their requests to the endpoint and the replies back.
+the path, size and no compression), FileSetSize, FileSaveData in chunks one at a time (the ESP's
+128 bytes once the line has shown it carries them, down to 8 while it damages them), FileClose.
+Then PrintProjectWithID with the path starts the print, and the client follows
+it with M27 through RunPrinterGCode until the printer says it is done (`Not SD printing`; an
+answer that is neither that nor its progress, such as a late answer to `M27 C` or one damaged
+past the checksum, is asked again). The rules that make each step happen exactly once are
+sans-IO, in fake_marlin.host.cores.commstack; this client carries their requests to the
+endpoint and the replies back, and keeps what they share over the connection (a Link).
 """
 
+import math
 import re
 import struct
 from collections.abc import Iterable
@@ -17,7 +21,8 @@ from typing import TypeVar
 import trio
 
 from fake_marlin.host.cores import commstack
-from fake_marlin.host.cores.commstack import CommStackEndpoint, CommStackStats, Reply, Steps
+from fake_marlin.host.cores.commstack import CommStackEndpoint, CommStackStats, Link, Reply, Steps
+from fake_marlin.host.errors import PrinterNotResponding
 from fake_marlin.host.gcode_file import read_job
 from fake_marlin.host.shell import (
     Client,
@@ -29,7 +34,13 @@ from fake_marlin.wire.commstack import Task
 from fake_marlin.wire.gcode import strip_comment
 
 POLL_INTERVAL = 1.0  # seconds between M27 while the printer prints the job
+# A printer printing from its card runs each request after the command in hand, which may take
+# minutes (a dwell, heating, a feed rate damaged past the checksum into F3): it is given up on
+# only after this many long timeouts (the options') without an answer. The print goes on
+# regardless of the host.
+PRINT_PATIENCE = 3
 _SD_PROGRESS = re.compile(r"SD printing byte (\d+)/(\d+)")
+_SD_DONE = "Not SD printing"
 T = TypeVar("T")
 
 
@@ -40,6 +51,7 @@ class CommStackClient(Client):
 
     def _open(self, options: ClientOptions) -> None:
         self._endpoint = CommStackEndpoint(options.timeout)
+        self._link = Link()
 
     @property
     def stats(self) -> CommStackStats:
@@ -88,22 +100,43 @@ class CommStackClient(Client):
         self, name: str, content: bytes, progress: ProgressCallback | None = None
     ) -> None:
         """Store `content` on the SD card as `name`, exactly."""
-        await self._run(commstack.upload(name, content, self.options.max_transmissions, progress))
+        await self._run(
+            commstack.upload(name, content, self.options.max_transmissions, progress, self._link)
+        )
 
     async def start_print(self, name: str) -> None:
         """Start printing `name` from the card, once."""
-        await self._run(commstack.start_print(name, self.options.max_transmissions))
+        await self._run(
+            commstack.start_print(
+                name, self.options.max_transmissions, self._link, self._patience()
+            )
+        )
 
     async def wait_for_print(self, progress: ProgressCallback | None = None) -> None:
-        """Until the printer reports no SD print; `progress` gets the bytes printed so far."""
+        """Until the printer reports no SD print; `progress` gets the bytes printed so far.
+
+        A printer that is printing may answer nothing for long (PRINT_PATIENCE)."""
+        tries, patience = self.options.max_transmissions, self._patience()
+        await self._run(commstack.sync(self._link, tries, patience))  # late M27 C answers first
+        unclear = 0
         while True:
-            status = " ".join(await self.send("M27"))
-            match = _SD_PROGRESS.search(status)
-            if match is None:
+            status = " ".join(await self._run(commstack.run_gcode("M27", tries, patience)))
+            if _SD_DONE in status:
                 return
-            if progress is not None:
-                progress(int(match[1]))
+            match = _SD_PROGRESS.search(status)
+            if match is not None:
+                unclear = 0
+                if progress is not None:
+                    progress(int(match[1]))
+            else:  # a late answer to another command, or one damaged past the checksum
+                unclear += 1
+                if unclear >= tries:
+                    raise PrinterNotResponding(f"M27 answered {status!r}, {tries} times running")
             await trio.sleep(POLL_INTERVAL)
+
+    def _patience(self) -> int:
+        """Tries that may go unanswered while the printer is known to be busy (printing)."""
+        return math.ceil(PRINT_PATIENCE * self.options.long_timeout / self.options.timeout)
 
     async def print_file(self, path: str, progress: ProgressCallback | None = None) -> PrintSummary:
         """Upload the file under its own name, print it, and return once the printer is done."""
@@ -122,8 +155,12 @@ class CommStackClient(Client):
         self, name: str, content: bytes, count: int, progress: ProgressCallback | None
     ) -> PrintSummary:
         since = self._snapshot()
-        await self.upload(name, content)
-        await self.start_print(name)
+        await self._run(
+            commstack.store_and_print(
+                name, content, self.options.max_transmissions, None, self._link,
+                self._patience(),
+            )
+        )
         ends = _command_ends(content)
 
         def printed(position: int) -> None:

@@ -7,26 +7,51 @@ that store a file on the printer's card and print it exactly once.
 What an exchange can end in (Exchange.outcome):
 - SUCCESS / FAILED: a ResponseSuccess / ResponseFailed for the task in flight. A ResponseFailed
   comes for a request whose data checksum was wrong (it did nothing), but also, from the MK20,
-  for a frame it could not decode at all, under the task of the last good packet: it does not
-  prove which request failed. So retrying a request that is not idempotent (file data) can store
-  it twice; the client checks an upload's length at the end for that reason.
+  for a frame it could not decode at all, under the task of the last frame it read: it does not
+  prove which request failed. And a success may be the late answer to an earlier request of
+  the same task, one whose exchange timed out.
 - TIMEOUT: no answer for `timeout` seconds. The request may have been lost, or its answer.
 
 The rules above the exchange (`run_gcode`, `upload`, `start_print`) are generators: each yields
 the next `Request` and is sent the `Reply` it got, so that the client only carries requests to
 the endpoint and replies back, and a test can play the printer's part with no I/O at all.
 
+Fresh answers. The line keeps order and the MK20 answers its requests in turn, so once the
+answer to a request has come, every answer to anything sent before it has come too, or never
+will. `sync` makes such a request that no other answer can be mistaken for: one under a task
+ID no firmware uses (0x40 and up, a new one each time), which the MK20 answers, as any request
+it has no handler for, with an empty ResponseSuccess under the same ID. After it, the next
+answer to a task is the answer to the request sent after the sync.
+
 Exactly once: neither a refusal nor silence says whether a chunk was stored. fake-marlin's MK20
-says the file's length in its answers: after a refusal or a timeout the uploader asks (an empty
-FileSaveData) and sends the chunk again only if it is not there. FileClose's answer gives the
-final length; should it be wrong, or a printer not say, and a chunk go unanswered, the upload
-starts over (FileOpenForWrite empties the file). A print request whose answer is lost is checked
-with `M27 C` (which file is selected) before it is sent again.
+says the file's length in its answers (FileSaveData's and FileClose's), so each chunk is stored
+on its own: a success that gives the length the chunk makes is its answer; anything else (a
+refusal, silence, a success with an older length) is settled by a sync and then the file's
+length (an empty FileSaveData): the chunk is there, or is sent again, or the file is neither
+(it is wrong). Only a file that is wrong starts the upload over (FileOpenForWrite empties it),
+and only the same place going wrong UPLOAD_ATTEMPTS times gives up. Retries are counted per
+chunk: only a printer that stops answering, or that stores none of `max_transmissions` chunks
+of the smallest size, makes an upload attempt end. With a printer that does not say the
+length, a refused chunk is sent again and an unanswered one starts the upload over.
+
+Chunk sizes (the ESP always sends 128 bytes; the MK20 stores whatever length comes). Every byte
+in a frame adds to the chance that it is damaged, and to the chance that two flips of one bit
+position cancel out in the MK20's byte sum and pass unseen (at 1e-3 per bit, about 1 in 40
+of the 128-byte chunks that are accepted; 1 in 3000 of 8-byte ones). So chunks start at
+MIN_CHUNK, double after GROW_AFTER bytes stored at the first try, up to CHUNK_SIZE, and fall to
+MIN_CHUNK again whenever one is damaged on its way (a lost answer says nothing of that way).
+Until they are back at CHUNK_SIZE a line end goes in a chunk of its own (`Link.next_chunk`).
+
+A print request that is not answered with a success is checked with `M27 C` (which file is
+selected), after a sync, before it is sent again. A file the printer will not print is stored
+again (`store_and_print`).
 """
 
+import itertools
 import json
 import struct
-from collections.abc import Callable, Generator
+from collections import Counter
+from collections.abc import Callable, Generator, Iterable
 from dataclasses import dataclass
 from enum import Enum, auto
 from pathlib import PurePath
@@ -46,7 +71,11 @@ from fake_marlin.wire.commstack import (
 )
 
 BUILD_NUMBER = 1  # what this host answers the MK20's pings with, as the ESP answers its own
-UPLOAD_ATTEMPTS = 3
+UPLOAD_ATTEMPTS = 3  # times the file may prove wrong at one place before the upload gives up
+MIN_CHUNK = 8  # the smallest FileSaveData chunk, and the first (the MK20 stores any length)
+GROW_AFTER = 512  # bytes stored at the first try, running, before the chunk size doubles
+OPEN_TRIES = 3  # times max_transmissions: FileOpenForWrite's JSON is the longest request
+SYNC_TASKS = range(0x40, 0x100)  # task IDs no firmware uses: the MK20 answers them success
 REPORTS = frozenset({"M27", "M105", "M114", "M115", "M20", "M31"})  # harmless to ask twice
 
 
@@ -143,9 +172,9 @@ class CommStackEndpoint:
 # -- the rules above the exchange ------------------------------------------------------------
 @dataclass(frozen=True)
 class Request:
-    task: Task
+    task: int  # a Task, or a sync task ID
     data: bytes = b""
-    resend: bool = False  # the same request again (counted in the stats' resends)
+    resend: bool = False  # data sent again (counted in the stats' resends)
 
 
 @dataclass(frozen=True)
@@ -158,6 +187,50 @@ T = TypeVar("T")
 Steps = Generator[Request, Reply, T]
 
 
+class Link:
+    """What the rules share over one connection: the sync task IDs handed out, and the chunk
+    size the line has allowed lately."""
+
+    def __init__(self) -> None:
+        self._syncs = itertools.cycle(SYNC_TASKS)
+        self.chunk_size = MIN_CHUNK  # until the line has shown it carries more
+        self._clean = 0  # bytes stored at the first try since the size last changed
+
+    def next_sync_task(self) -> int:
+        return next(self._syncs)
+
+    @property
+    def noisy(self) -> bool:
+        """The line has lately damaged a chunk (or has not yet shown that it does not)."""
+        return self.chunk_size < CHUNK_SIZE
+
+    def next_chunk(self, content: bytes, offset: int) -> bytes:
+        """What to send of `content` from `offset`. On a noisy line a line end goes alone:
+        the two flips in one frame that the MK20's byte sum misses can change a command's
+        characters, but not a 1-byte chunk (that takes three, in the data and both sums), so
+        damage past the checksums never joins two commands into one."""
+        chunk = content[offset:offset + self.chunk_size]
+        if self.noisy:
+            end = chunk.find(b"\n")
+            if end >= 0:
+                chunk = chunk[:max(end, 1)]
+        return chunk
+
+    def chunk_stored(self, length: int, at_first_try: bool) -> None:
+        if not at_first_try:
+            return  # its answer was lost: that says nothing of the way to the printer
+        self._clean += length
+        if self._clean >= GROW_AFTER and self.chunk_size < CHUNK_SIZE:
+            self.chunk_size = min(CHUNK_SIZE, self.chunk_size * 2)
+            self._clean = 0
+
+    def chunk_missed(self) -> None:
+        """A chunk was damaged on its way: the smallest again, as every byte in a frame adds
+        to the chance that two flips pass the byte sum."""
+        self.chunk_size = MIN_CHUNK
+        self._clean = 0
+
+
 def check_command(command: str) -> str:
     """A line as it can stand in a file on the card: printable ASCII."""
     if not command or not all(" " <= char <= "~" for char in command):
@@ -167,13 +240,18 @@ def check_command(command: str) -> str:
 
 def request(
     task: Task, data: bytes, max_transmissions: int, retry_on_timeout: bool = True,
-    refused: str | None = None,
+    refused: str | None = None, patience: int | None = None,
 ) -> Steps[bytes]:
     """A request that may go again: until ResponseSuccess, or the retries run out. A
     ResponseFailed is retried too (it may have answered a damaged frame); `refused` says what
-    it means when every try is refused. Returns the success's data."""
+    it means when every try is refused. `patience` is how many tries in all may go by, for a
+    printer that may be busy for long (one that is printing runs each request after the
+    command in hand, however long that takes); refusals still give up after
+    `max_transmissions` running. Returns the success's data."""
+    tries = max_transmissions if patience is None else max(patience, max_transmissions)
     reply = Reply(Outcome.TIMEOUT)
-    for attempt in range(max_transmissions):
+    refusals = 0
+    for attempt in range(tries):
         reply = yield Request(task, data, resend=attempt > 0)
         if reply.outcome is Outcome.SUCCESS:
             return reply.answer
@@ -181,88 +259,154 @@ def request(
             raise PrinterNotResponding(
                 f"no answer to {task.name}; it may or may not have been carried out"
             )
+        refusals = refusals + 1 if reply.outcome is Outcome.FAILED else 0
+        if refusals >= max_transmissions:
+            break
     if reply.outcome is Outcome.FAILED and refused is not None:
         raise UploadFailed(refused)
     what = "refused" if reply.outcome is Outcome.FAILED else "unanswered"
+    count = refusals if reply.outcome is Outcome.FAILED else tries
     raise PrinterNotResponding(
-        f"{task.name} {what} {max_transmissions} times; is a Printrbot (CommStack) on the port?"
+        f"{task.name} {what} {count} times; is a Printrbot (CommStack) on the port?"
     )
 
 
-def run_gcode(command: str, max_transmissions: int) -> Steps[tuple[str, ...]]:
+def sync(link: Link, max_transmissions: int, patience: int | None = None) -> Steps[None]:
+    """Until the printer has answered everything sent before (see the module's docstring)."""
+    tries = max_transmissions if patience is None else max(patience, max_transmissions)
+    refusals = 0
+    for _ in range(tries):
+        reply = yield Request(link.next_sync_task())
+        if reply.outcome is Outcome.SUCCESS:
+            return
+        refusals = refusals + 1 if reply.outcome is Outcome.FAILED else 0
+        if refusals >= max_transmissions:
+            break
+    raise PrinterNotResponding(
+        f"no request answered in {tries} tries; is a Printrbot (CommStack) on the port?"
+    )
+
+
+def run_gcode(
+    command: str, max_transmissions: int, patience: int | None = None
+) -> Steps[tuple[str, ...]]:
     """RunPrinterGCode: returns what the command printed. Only reports are asked again after
     silence: anything else may have run already."""
     check_command(command)
     answer = yield from request(
         Task.RUN_PRINTER_GCODE, command.encode("ascii") + b"\0", max_transmissions,
-        retry_on_timeout=command.split()[0].upper() in REPORTS,
+        retry_on_timeout=command.split()[0].upper() in REPORTS, patience=patience,
     )
     lines = tuple(answer.decode("latin-1").splitlines())
+    check_halt(lines)
+    return lines
+
+
+def check_halt(lines: Iterable[str]) -> None:
+    """PrinterHalted if the printer's output says it has halted."""
     for line in lines:
         if is_halt_message(line):
             raise PrinterHalted(f"the printer halted: {line}")
-    return lines
 
 
 def upload(
     name: str, content: bytes, max_transmissions: int,
-    progress: Callable[[int], None] | None = None,
+    progress: Callable[[int], None] | None = None, link: Link | None = None,
 ) -> Steps[None]:
     """Store `content` on the SD card as `name`, exactly; `progress` gets the bytes stored."""
-    for _ in range(UPLOAD_ATTEMPTS):
-        if (yield from _upload_once(name, content, max_transmissions, progress)):
+    link = Link() if link is None else link
+    header = {"localFilePath": name, "showUI": False, "fileSize": len(content), "compression": 1}
+    opened = json.dumps(header, separators=(",", ":")).encode() + b"\0"
+    if len(opened) > MAX_DATA:
+        raise CommandError(f"the file name {name!r} is too long for FileOpenForWrite")
+    went_wrong: Counter[int] = Counter()
+    while True:
+        wrong = yield from _upload_once(name, opened, content, link, max_transmissions, progress)
+        if wrong is None:
             return
-    raise UploadFailed(f"could not store {name} intact in {UPLOAD_ATTEMPTS} attempts")
+        where, why = wrong
+        went_wrong[where] += 1
+        if went_wrong[where] >= UPLOAD_ATTEMPTS:
+            raise UploadFailed(
+                f"could not store {name} intact in {UPLOAD_ATTEMPTS} attempts: at byte {where}"
+                f" {why}"
+            )
+
+
+Wrong = tuple[int, str]  # where the file on the card went wrong, and how
 
 
 def _upload_once(
-    name: str, content: bytes, max_transmissions: int, progress: Callable[[int], None] | None
-) -> Steps[bool]:
-    header = {"localFilePath": name, "showUI": False, "fileSize": len(content), "compression": 1}
-    opened = json.dumps(header).encode() + b"\0"
-    if len(opened) > MAX_DATA:
-        raise CommandError(f"the file name {name!r} is too long for FileOpenForWrite")
-    yield from request(
-        Task.FILE_OPEN_FOR_WRITE, opened, max_transmissions,
+    name: str, opened: bytes, content: bytes, link: Link, max_transmissions: int,
+    progress: Callable[[int], None] | None,
+) -> Steps[Wrong | None]:
+    """One upload from an empty file: None once the file is `content`."""
+    yield from request(  # harmless to repeat: no data has gone yet
+        Task.FILE_OPEN_FOR_WRITE, opened, OPEN_TRIES * max_transmissions,
         refused=f"the printer cannot open {name} for writing (has it an SD card?)",
     )
     yield from request(Task.FILE_SET_SIZE, struct.pack("<I", len(content)), max_transmissions)
-    for start in range(0, len(content), CHUNK_SIZE):
-        chunk = content[start:start + CHUNK_SIZE]
-        if not (yield from _store_chunk(chunk, start, max_transmissions)):
-            return False
+    offset = 0
+    while offset < len(content):
+        stored = yield from _store_chunk(content, offset, link, max_transmissions)
+        if isinstance(stored, tuple):
+            return stored
+        offset += stored
         if progress is not None:
-            progress(start + len(chunk))
-    length = stored_length(
-        (yield from request(Task.FILE_CLOSE, b"", max_transmissions))
-    )
-    return length is None or length == len(content)
+            progress(offset)
+    length = stored_length((yield from request(Task.FILE_CLOSE, b"", max_transmissions)))
+    # FileClose is answered alike however often it comes: its answer is never out of date.
+    if length is not None and length != len(content):
+        return len(content), f"the printer closed a file of {length} bytes"
+    return None
 
 
-def _store_chunk(chunk: bytes, offset: int, max_transmissions: int) -> Steps[bool]:
-    """Append `chunk` at `offset`, once; False if the file is not what it should be."""
-    for attempt in range(max_transmissions):
-        reply = yield Request(Task.FILE_SAVE_DATA, chunk, resend=attempt > 0)
+def _store_chunk(
+    content: bytes, offset: int, link: Link, max_transmissions: int
+) -> Steps[int | Wrong]:
+    """Append the next chunk of `content` to the file, which holds `offset` bytes and has no
+    data on the way to it, once. Returns how many bytes were stored, or how the file went
+    wrong: it holds neither `offset` bytes nor those and the chunk; a printer that does not
+    say the length left the chunk unanswered; or not even the smallest chunk is stored in
+    `max_transmissions` tries (a card taken out, a file opened for something else: the
+    upload starts over, which a printer that refuses all data soon gives up)."""
+    tries_at_smallest = 0
+    missed = False
+    while True:
+        chunk = link.next_chunk(content, offset)
+        end = offset + len(chunk)
+        tries_at_smallest += len(chunk) <= MIN_CHUNK
+        reply = yield Request(Task.FILE_SAVE_DATA, chunk, resend=missed)
         if reply.outcome is Outcome.SUCCESS:
             length = stored_length(reply.answer)
-            if length is None or length == offset + len(chunk):
-                return True
-        else:
-            # Refused (perhaps for another frame) or unanswered: was it stored?
-            length = yield from _ask_length(max_transmissions)
-            if length is None:  # a printer that does not say: only a refusal is safe to repeat
-                if reply.outcome is Outcome.TIMEOUT:
-                    return False
-                continue
-            if length == offset + len(chunk):
-                return True
-        if length != offset:
-            return False  # neither before nor after this chunk: start over
-    return False
+            if length is None or length == end:  # the chunk's own answer
+                link.chunk_stored(len(chunk), at_first_try=not missed)
+                return len(chunk)
+            if length > offset:
+                return offset, f"the file held {length} bytes"
+            # An older length: a late answer to an earlier request. This one's is to come.
+        length = yield from _length_now(link, max_transmissions)
+        if length is None:  # a printer that does not say: only a refusal is safe to repeat
+            if reply.outcome is not Outcome.FAILED:
+                return offset, "a chunk went unanswered and the printer does not say the length"
+        elif length == end:
+            link.chunk_stored(len(chunk), at_first_try=False)
+            return len(chunk)
+        elif length != offset:
+            return offset, f"the file held {length} bytes"
+        missed = True
+        link.chunk_missed()
+        if tries_at_smallest >= max_transmissions:
+            return offset, (
+                f"the printer stored none of {max_transmissions} chunks of {MIN_CHUNK} bytes"
+            )
 
 
-def _ask_length(max_transmissions: int) -> Steps[int | None]:
-    """The open file's length, asked with an empty FileSaveData (None: not told)."""
+def _length_now(link: Link, max_transmissions: int) -> Steps[int | None]:
+    """The open file's length once everything sent before has been carried out (None: the
+    printer does not say): a sync, then an empty FileSaveData. Asking again is safe, as no
+    data is on the way: any answer to it is the same."""
+    yield from sync(link, max_transmissions)
     for _ in range(max_transmissions):
         reply = yield Request(Task.FILE_SAVE_DATA, b"")
         if reply.outcome is Outcome.SUCCESS:
@@ -270,17 +414,48 @@ def _ask_length(max_transmissions: int) -> Steps[int | None]:
     raise PrinterNotResponding("no answer to FileSaveData; is a Printrbot on the port?")
 
 
-def start_print(name: str, max_transmissions: int) -> Steps[None]:
+def start_print(
+    name: str, max_transmissions: int, link: Link | None = None, patience: int | None = None
+) -> Steps[None]:
     """PrintProjectWithID, once: a second would print the file again if the first already ran,
-    so an answer that is not a success is checked with `M27 C` before the request goes again."""
+    so an answer that is not a success is checked with `M27 C`, after a sync (the request has
+    been carried out by then, if it ever will be), before the request goes again. The print
+    may have begun, and the printer be busy with its first command: `patience` (as for
+    `request`) for the sync and the check."""
+    if not (yield from _start_print(name, max_transmissions, link, patience)):
+        raise UploadFailed(f"the printer would not print {name}")
+
+
+def store_and_print(
+    name: str, content: bytes, max_transmissions: int,
+    progress: Callable[[int], None] | None = None, link: Link | None = None,
+    patience: int | None = None,
+) -> Steps[None]:
+    """`upload`, then `start_print`; a file the printer will not print is stored again (a name
+    damaged past the checksum in FileOpenForWrite stores the job under another name), up to
+    UPLOAD_ATTEMPTS times."""
+    link = Link() if link is None else link
+    for _ in range(UPLOAD_ATTEMPTS):
+        yield from upload(name, content, max_transmissions, progress, link)
+        if (yield from _start_print(name, max_transmissions, link, patience)):
+            return
+    raise UploadFailed(f"the printer would not print {name}, stored {UPLOAD_ATTEMPTS} times")
+
+
+def _start_print(
+    name: str, max_transmissions: int, link: Link | None, patience: int | None
+) -> Steps[bool]:
+    """start_print's rule: False if the printer refused every try and selected nothing."""
+    link = Link() if link is None else link
     for attempt in range(max_transmissions):
         reply = yield Request(Task.PRINT_PROJECT_WITH_ID, name.encode() + b"\0", resend=attempt > 0)
         if reply.outcome is Outcome.SUCCESS:
-            return
-        selected = " ".join((yield from run_gcode("M27 C", max_transmissions)))
+            return True
+        yield from sync(link, max_transmissions, patience)
+        selected = " ".join((yield from run_gcode("M27 C", max_transmissions, patience)))
         if "Current file:" in selected and PurePath(name).name in selected.split():
-            return
-    raise UploadFailed(f"the printer would not print {name}")
+            return True
+    return False
 
 
 def stored_length(answer: bytes) -> int | None:
