@@ -11,8 +11,9 @@ fault at all, some have everything. What a case may draw:
   log scale, so that 1e-6 is as likely as 1e-4;
 - unit faults, drop, duplicate and truncate, each way, with a probability trigger up to 5% per
   unit (sometimes only on acknowledgements: `pattern = "^ok"`, Ultimaker's `"^o"`), for every
-  protocol: the fault layer frames each wire format (lines, Ultimaker packets, and whatever
-  framers it has for Repetier's binary commands and CommStack's COBS frames);
+  protocol: the fault layer frames each wire format (lines, Ultimaker packets, Repetier's
+  binary commands, CommStack's COBS frames), except duplicated requests toward a CommStack
+  printer (APPEND_ONLY says why);
 - garbage bursts, at a moment (`at`) or by chance per unit; link stalls of up to 6 s (less
   than the host's patience: 8 transmissions, 2 s apart);
 - latency with jitter on the printer's line;
@@ -68,6 +69,12 @@ STREAMING = ("ultimaker", "marlin", "repetier")
 MAX_RATE = 1e-3  # bit errors (per bit) and dropped bytes (per byte)
 MIN_RATE = 1e-6
 MAX_UNIT_PROBABILITY = 0.05  # drop, duplicate, truncate: chance per unit
+# Protocols whose requests carry no sequence number and whose file writes only append: a
+# request frame the line duplicates is two writes, which nothing on the wire tells from two
+# the host sent (CommStack). The host sees it in the file's length and starts the upload over,
+# so a print never runs damaged, but at a few percent of frames no upload gets through: the
+# campaign duplicates only their answers.
+APPEND_ONLY = frozenset({"commstack"})
 MIN_UNIT_PROBABILITY = 1e-3
 MAX_STALL = 6.0  # seconds
 RESET_SHARE = 0.15  # of the cases: a printer reboot, expected to be reported
@@ -116,6 +123,8 @@ def generate(protocol: str, seed: int, number: int, moves: int | None = None) ->
     for kind in ("drop", "duplicate", "truncate"):
         for _ in range(some(2)):
             direction = draw.choice(DIRECTIONS)
+            if kind == "duplicate" and protocol in APPEND_ONLY:
+                direction = "to-host"
             chance = _log_uniform(draw, MIN_UNIT_PROBABILITY, MAX_UNIT_PROBABILITY)
             fault: Table = {"kind": kind, "direction": direction, "probability": chance}
             if direction == "to-host" and protocol in ACK_PATTERNS and draw.random() < 0.3:

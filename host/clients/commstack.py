@@ -22,7 +22,7 @@ import trio
 
 from fake_marlin.host.cores import commstack
 from fake_marlin.host.cores.commstack import CommStackEndpoint, CommStackStats, Link, Reply, Steps
-from fake_marlin.host.errors import PrinterNotResponding
+from fake_marlin.host.errors import PrinterNotResponding, PrinterReset
 from fake_marlin.host.gcode_file import read_job
 from fake_marlin.host.shell import (
     Client,
@@ -41,6 +41,9 @@ POLL_INTERVAL = 1.0  # seconds between M27 while the printer prints the job
 PRINT_PATIENCE = 3
 _SD_PROGRESS = re.compile(r"SD printing byte (\d+)/(\d+)")
 _SD_DONE = "Not SD printing"
+# After "Not SD printing", how long to listen for the pings of a printer that restarted (the MK20
+# says nothing else as it boots): three of its 5 s intervals, in case the first pings are lost.
+BOOT_PINGS_WITHIN = 16.0
 T = TypeVar("T")
 
 
@@ -167,7 +170,16 @@ class CommStackClient(Client):
             if progress is not None:
                 progress(sum(1 for end in ends if end <= position))
 
+        pings = self._endpoint.printer_pings
         await self.wait_for_print(printed)
+        # A print that stopped because the printer restarted also ends in "Not SD printing".
+        with trio.move_on_after(BOOT_PINGS_WITHIN):
+            await self._wait_until(lambda: self._endpoint.printer_pings > pings)
+        if self._endpoint.printer_pings > pings:
+            raise PrinterReset(
+                "the printer restarted during the print (it pinged as it booted): what it had "
+                "not printed yet is lost"
+            )
         self.completed += count
         if progress is not None:
             progress(count)

@@ -111,6 +111,9 @@ class CommStackEndpoint:
         self._frames = FrameSplitter(limit=1 << 16)
         self._current: Exchange | None = None
         self._answers: list[bytes] = []  # our responses to the printer's requests
+        # The MK20's pings: it sends them as it boots (every 5 s until answered), and at no
+        # other time, so one that comes during a print says the printer restarted.
+        self.printer_pings = 0
 
     def start(self, task: int, data: bytes = b"") -> Exchange:
         if self._current is not None and self._current.outcome is None:
@@ -152,6 +155,7 @@ class CommStackEndpoint:
                 self._settle(decoded)
 
     def _answer(self, request: Packet) -> None:
+        self.printer_pings += request.task == Task.PING
         data = struct.pack("<i", BUILD_NUMBER) if request.task == Task.PING else b""
         self._answers.append(encode_packet(Packet(request.task, CommType.RESPONSE_SUCCESS, data)))
 
