@@ -527,3 +527,23 @@ def test_answers_that_arrive_damaged_are_no_silence_the_host_keeps_asking():
         sender.on_ok(Ok(), (), now)
 
     assert probes_until_given_up(MarlinSender(max_transmissions=8), damaged) == 64
+
+
+def test_a_printer_that_counts_less_than_it_accepted_restarted():
+    """A reset whose `start` line was lost: the probes' answers say the counter is 0 again.
+    One such answer may be a late one; three in a row are a restarted printer."""
+    sender = synced_sender()
+    for number, command in enumerate(["G28", "G1 X1", "G1 X2"], 1):
+        sender.submit(command)
+        assert sender.poll(float(number)) == [encode_line(number, command)]
+        sender.on_ok(Ok(), (), number + 0.5)
+    sender.submit("G1 X3")
+    assert sender.poll(4.0) == [encode_line(4, "G1 X3")]
+    now, counts = 4.0, [3]  # the first probe finds line 3 accepted; then the printer restarts
+    with pytest.raises(PrinterReset, match="counts line 0, though it had accepted line 3"):
+        for _ in range(20):
+            deadline = sender.next_deadline()
+            now = deadline if deadline is not None else now + 1
+            for data in sender.poll(now):
+                if data == PROBE:
+                    answer(sender, counts.pop() if counts else 0, now + 0.01)

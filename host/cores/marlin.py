@@ -67,6 +67,9 @@ HISTORY = 32  # completed lines kept for a resend
 # probe's answer is three lines; at a bit error rate of 1e-3 each way half of them arrive
 # damaged, so eight in a row are no proof of a dead printer, but 64 (once in 10^19) are.
 GARBLED_PATIENCE = 8
+# Answers in a row that count less than the printer had accepted, which prove it restarted: a
+# late answer to an earlier probe is one; three are no longer late.
+LOWER_COUNTS_MEAN_RESET = 3
 _M113 = re.compile(r"\s*[Mm]0*113(?!\d)(?:.*?[Ss]\s*(\d+(?:\.\d*)?))?")
 
 
@@ -145,6 +148,7 @@ class MarlinSender(CommandQueue):
         self._probe_since: float | None = None  # a probe is out, sent then
         self._probe_streak = 0  # probes without a believable answer
         self._probe_silences = 0  # of those, probes that drew no line at all
+        self._lower_counts = 0  # answers since, each counting less than the printer had accepted
         self._ok_during_probe: tuple[str, ...] | None = None
         self._report: _LineErrorReport | None = None
         self._last_heard = -math.inf  # the last sign of work on what the host sent
@@ -389,8 +393,17 @@ class MarlinSender(CommandQueue):
             self._sync(last)
             return
         if last < self._confirmed:
-            return  # older news (a delayed answer to an earlier probe)
-        self._probe_streak = self._probe_silences = 0
+            # Older news (a delayed answer to an earlier probe), unless the printer says it
+            # again and again: then it counts from less than it had, and restarted (its
+            # `start` line lost on a noisy line).
+            self._lower_counts += 1
+            if self._lower_counts >= LOWER_COUNTS_MEAN_RESET:
+                raise PrinterReset(
+                    f"the printer counts line {last}, though it had accepted line "
+                    f"{self._confirmed}: it restarted, and what it had queued is gone"
+                )
+            return
+        self._probe_streak = self._probe_silences = self._lower_counts = 0
         if last >= self._next_number:
             raise PrinterReset(
                 f"the printer counts line {last}, but this host has sent only up to "
