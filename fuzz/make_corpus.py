@@ -113,17 +113,21 @@ WHOLE_INPUTS: dict[str, dict[str, bytes]] = {  # targets that take the input as 
 # Inputs of the bugs found and reported (fuzz.targets.KNOWN): fuzz/known/<target>/<bug>.
 SCENARIO = '[printer]\nprotocol = "marlin"\n'
 KNOWN = {
-    "gcode_parser": {
-        "canonical-redos": b"G1" + b" X1111111" * 9 + b"!",
-        "gcode-huge-code": b"G" + b"9" * 400,
-    },
     "host_repetier_parser": {
         "canonical-command-zeros": b"\x80\x04T00",
         "repetier-text-spaces": b"\x80\x05M117  Hello",
     },
     "host_marlin_parser": {"host-long-line": WHOLE + b"Resend: " + b"9" * 4400 + b"\n"},
+}
+# Inputs of the bugs found and fixed: seeds of the corpus from then on, so that every test run
+# tries them again.
+FIXED = {
     "repetier_receiver": {  # N1 G1 X<FLT_MAX>, its checksum right
         "repetier-float-overflow": WHOLE + bytes.fromhex("8d00010001ffff7f7f8e84"),
+    },
+    "gcode_parser": {
+        "canonical-redos": b"G1" + b" X1111111" * 9 + b"!",
+        "gcode-huge-code": b"G" + b"9" * 400,
     },
     "scenario_loader": {
         "scenario-bad-pattern": (SCENARIO + '[[fault]]\nkind = "drop"\ndirection = "to-host"\n'
@@ -140,7 +144,7 @@ def main() -> None:
         folder.mkdir(parents=True, exist_ok=True)
         for name, data in seeds.items():
             (folder / name).write_bytes(data)
-    for target, seeds in {**STREAMS, **WHOLE_INPUTS}.items():
+    for target, seeds in [*STREAMS.items(), *WHOLE_INPUTS.items(), *FIXED.items()]:
         folder = CORPUS / target
         folder.mkdir(parents=True, exist_ok=True)
         for name, data in seeds.items():

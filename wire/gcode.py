@@ -20,7 +20,9 @@ def remove_paren_comments(text: str) -> str:
 
 # -- the same command, however it is written ------------------------------------------------
 TEXT_ARGUMENT_CODES = frozenset({"M23", "M28", "M29", "M30", "M32", "M117", "M118"})
-NUMBER = r"[-+]?(?:\d+\.?\d*|\.\d+)"  # a G-code number: no exponents, no underscores
+NUMBER = r"[-+]?(?:\d+(?:\.\d*)?|\.\d+)"  # a G-code number: no exponents, no underscores
+# (\d+\.?\d* matched the same, but let a failing match try every split of a run of digits
+# between \d+ and \d*: exponential, minutes for a 93-character line; found by fuzzing.)
 WORD = re.compile(rf"([A-Za-z])\s*({NUMBER})?")  # a letter and its value, if it has one
 _WORDS = re.compile(rf"(?:\s*[A-Za-z]\s*(?:{NUMBER})?)+\s*")
 
@@ -35,10 +37,15 @@ def number_text(value: float) -> str:
     """The shortest plain decimal that is the same float32 (an int as itself)."""
     if isinstance(value, int) or not math.isfinite(value):
         return str(value)
+    text = repr(value)
     for digits in range(1, 10):
-        text = f"{value:.{digits}g}"
-        if float32(float(text)) == value:
-            break
+        candidate = f"{value:.{digits}g}"
+        try:
+            if float32(float(candidate)) == value:
+                text = candidate
+                break
+        except OverflowError:  # rounded past the largest float32 (FLT_MAX): more digits
+            continue
     plain = format(Decimal(text), "f")
     return plain.rstrip("0").rstrip(".") if "." in plain else plain
 
@@ -67,6 +74,7 @@ def _number(text: str) -> str:
     if not text:
         return ""
     try:
-        return number_text(float32(float(text)))
+        value = float32(float(text))
     except OverflowError:
         return text
+    return number_text(value) if math.isfinite(value) else text  # past any float: as written

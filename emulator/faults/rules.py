@@ -69,7 +69,10 @@ class Trigger:
         if self.at is not None and self.at < 0:
             raise ValueError("at is seconds from power-on, 0 or more")
         if self.pattern is not None:
-            re.compile(self.pattern)
+            try:
+                re.compile(self.pattern)
+            except re.error as error:
+                raise ValueError(f"pattern {self.pattern!r} is no regular expression: {error}") from None
 
     @property
     def limit(self) -> int | None:

@@ -59,5 +59,5 @@ def _integer_text(number: str) -> str:
         return ""
     try:
         return str(int(float(number)))
-    except ValueError:
+    except (ValueError, OverflowError):  # OverflowError: a number of 309 digits and more
         return number

@@ -233,7 +233,7 @@ def _job(path: Path, table: _Reader) -> tuple[tuple[str, ...], Path | None]:
     from fake_marlin.wire.gcode import strip_comment
 
     file = table.get("file", str, None)
-    moves = table.get("moves", int, None, minimum=1)
+    moves = table.get("moves", int, None, minimum=1, maximum=MAX_MOVES)
     table.finish()
     if file is not None and moves is not None:
         table.fail("file", "give a file or a number of moves, not both")
@@ -243,10 +243,15 @@ def _job(path: Path, table: _Reader) -> tuple[tuple[str, ...], Path | None]:
             text = job_path.read_text(encoding="utf-8", errors="replace")
         except OSError as error:
             table.fail("file", f"cannot read {job_path}: {error.strerror}")
+        except ValueError as error:  # a NUL in the name
+            table.fail("file", f"cannot read {job_path!r}: {error}")
         return tuple(c for line in text.splitlines() if (c := strip_comment(line))), job_path
     if moves is not None:
         return generated_job(moves), None
     return (), None
+
+
+MAX_MOVES = 1_000_000  # a generated job of more is no test anyone waits for
 
 
 def generated_job(moves: int) -> tuple[str, ...]:
