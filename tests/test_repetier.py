@@ -20,6 +20,8 @@ from fake_marlin.emulator.protocols.repetier import (
 from fake_marlin.emulator.server.lifecycle import ServerConfig
 from fake_marlin.host.codecs import repetier as host_codec
 from fake_marlin.host.connect import connect
+from fake_marlin.host.cores.repetier import RepetierSender
+from fake_marlin.host.errors import PrinterNotResponding
 from fake_marlin.wire import repetier
 from fake_marlin.wire.gcode import canonical
 from tests.conftest import running_printer
@@ -177,6 +179,41 @@ def test_a_repeated_line_is_skipped_and_a_gap_asks_for_a_resend():
     assert said == "Error:expected line 3 got 60\r\n\r\nResend:3\r\nok\r\n"
 
 
+def m110(n: int) -> bytes:
+    """`N<n> M110` as an ASCII line: sets the counter to any 32-bit n (a binary N has 16 bits)."""
+    return ascii_line(n, "M110")
+
+
+@pytest.mark.parametrize(
+    "last, n, said",
+    [
+        (10, 11, "ok 11"),  # the next line
+        (10, 10, "skip 10"),  # the last one again: a repeat
+        (50, 11, "skip 11"),  # 39 behind: still a repeat
+        (50, 10, "Resend:51"),  # 40 behind: a gap
+        (10, 12, "Resend:11"),  # one ahead of the next: a gap, never a repeat
+        (10, 49, "Resend:11"),  # 39 ahead
+        (65540, 65541 & 0xFFFF, "ok 5"),  # a binary N is 16 bits: the counter compares modulo 2^16
+        (65540, 65538 & 0xFFFF, "skip 2"),  # 2 behind, across the wrap
+        (65540, 65543 & 0xFFFF, "Resend:65541"),  # 2 ahead, across the wrap
+        (3, 65535, "skip 65535"),  # 4 behind, the other way across the wrap
+    ],
+)
+def test_only_a_line_at_or_behind_the_last_is_a_repeat(last, n, said):
+    """checkAndPushCommand: static_cast<uint16_t>(lastLineNumber - actLineNumber) < 40 is a
+    repeat (skip); anything else out of sequence is a gap (Error, Resend), however close."""
+    protocol = RepetierProtocol()
+    assert received(protocol, m110(last)) == ([], "ok\r\n")
+    events, reply = received(protocol, binary("G1 X1", n))
+    if said.startswith("ok"):
+        assert [e.line_number for e in events] == [n] and reply == said + "\r\n"
+    elif said.startswith("skip"):
+        assert events == [] and reply == said + "\r\nok\r\n"
+    else:
+        assert [type(e) for e in events] == [CommandRejected]
+        assert reply == f"Error:expected line {last + 1} got {n}\r\n\r\n{said}\r\nok\r\n"
+
+
 def test_after_binary_an_ascii_line_needs_a_checksum():
     protocol = RepetierProtocol()
     received(protocol, binary("G1 X1", 1))
@@ -205,6 +242,23 @@ async def test_m115_announces_the_protocol_and_an_idle_printer_says_wait(autojum
     assert said.startswith("start\r\nInfo:External Reset\r\n")
     assert "ok\r\nok 1\r\nFIRMWARE_NAME:Repetier_" in said and " REPETIER_PROTOCOL:3\r\n" in said
     assert "ok 2\r\nT:21.00 /0 B:21.00 /0 B@:0 @:0\r\nwait\r\n" in said
+
+
+async def test_the_quiet_before_a_resend_counts_from_the_last_byte_read(autojump_clock):
+    """readFromSerial: timeOfLastDataPacket is when the firmware last read a byte. A damaged
+    command that waited unread behind a long one draws one Resend when it is read, the next
+    only after 200 ms more of quiet, not two at once."""
+    async with running_printer(ServerConfig(protocol="repetier")) as printer:
+        host = printer.link.open_host()
+        await trio.testing.wait_all_tasks_blocked()
+        damaged = bytearray(binary("G1 X2", 2))
+        damaged[5] ^= 0x10
+        await host.send_all(binary("M110", 0) + binary("G4 P1000", 1) + bytes(damaged))
+        await trio.sleep(1.1)
+        said = (await host.receive_some()).decode()
+        assert said.count("Resend:") == 1 and said.endswith("Error:Wrong checksum\r\n\r\nResend:2\r\nok\r\n")
+        await trio.sleep(0.2)
+        assert (await host.receive_some()).decode() == "\r\nResend:2\r\nok\r\n"
 
 
 async def test_busy_while_a_long_command_holds_the_buffer(autojump_clock):
@@ -238,6 +292,10 @@ JOB = ["G28", "M104 S200", "M117 Printing a longer message", "G2 X10 Y10 I5 J5",
         ("to-printer:bit-errors=3e-4",),
         ("to-host:bit-errors=1e-4", "to-printer:drop-bytes=1e-3"),
         ("to-printer:corrupt-lines=0.05", "to-host:corrupt-lines=0.05"),
+        # The most the protocol recovers from: about one command in seven damaged, one resync
+        # in five spoilt, and oks, Resends and skips with damaged numbers.
+        ("to-printer:bit-errors=1e-3", "to-host:bit-errors=1e-3",
+         "to-printer:drop-bytes=1e-3", "to-host:drop-bytes=1e-3"),
     ],
 )
 async def test_the_host_streams_a_job_exactly_once_through_faults(autojump_clock, faults):
@@ -265,3 +323,167 @@ async def test_auto_takes_high_bytes_for_noise_unless_a_command_checks_out(autoj
         await trio.sleep(1)
         assert (await host.receive_some()).decode().startswith("start\n")
         assert printer.server.protocol_name == "marlin"
+
+
+# -- the host's sender, sans IO ---------------------------------------------------------------
+FIRMWARE = "FIRMWARE_NAME:Repetier_1.0.4 FIRMWARE_URL:x PROTOCOL_VERSION:1.0 REPETIER_PROTOCOL:3"
+
+
+def say(sender: RepetierSender, text: str, now: float) -> None:
+    """The printer says `text` (lines ending in \\r\\n), as the host's parser reads it."""
+    parser = host_codec.LineParser()
+    parser.receive_data(text.encode("latin-1"))
+    while (event := parser.next_event()) is not None:
+        sender.on_event(event, now)
+
+
+def sent(sender: RepetierSender, now: float) -> list[int | str]:
+    """What the sender writes now: each command's line number, and "NUL" for a resync."""
+    out: list[int | str] = []
+    for chunk in sender.poll(now):
+        if chunk.startswith(host_codec.RESYNC):
+            out.append("NUL")
+            chunk = chunk[len(host_codec.RESYNC):]
+        if chunk:
+            out.append(repetier.decode(chunk).n if chunk[0] & 0x80 else int(chunk[1:].split()[0]))
+    return out
+
+
+def connected(firmware: str = FIRMWARE, lines: int = 0) -> RepetierSender:
+    """A sender past M110 and M115, with `lines` moves submitted (line 2 on)."""
+    sender = RepetierSender()
+    assert sent(sender, 0) == [0]
+    say(sender, "ok\r\n", 0)
+    assert sent(sender, 0) == [1]
+    say(sender, f"ok 1\r\n{firmware}\r\n", 0)
+    for index in range(lines):
+        sender.submit(f"G1 X{index + 1}")
+    return sender
+
+
+def test_a_line_resent_for_the_errors_of_lines_before_it_is_not_given_up():
+    """Each Resend sends the whole window again; a line far in it goes out once per error of
+    any line before it. Only go-backs without anything new accepted count towards giving up."""
+    sender = connected(lines=40)
+    window = sent(sender, 0)
+    assert window == list(range(2, 2 + len(window))) and len(window) > 8
+    last = window[-1]
+    for head in range(2, last - 1):  # each line before `last` is damaged once, after its ok
+        say(sender, f"ok {head}\r\nError:Wrong checksum\r\n\r\nResend:{head + 1}\r\nok\r\n", head)
+        assert sent(sender, head)[:3] == ["NUL", head + 1, head + 2]
+    far = next(line for line in sender._lines if line.number == last)
+    assert far.transmissions > sender.max_transmissions
+
+
+@pytest.mark.parametrize(
+    "after, words, resent",
+    [
+        (0.2, "", False),  # the firmware's next Resend while the answer is on its way
+        (0.4, "", False),
+        (0.2, "Error:Wrong checksum\r\n\r\n", True),  # it read the answer, and refused it
+        (0.6, "", True),  # long enough: the answer was lost
+        (0.2, "\r\n", False),
+    ],
+)
+def test_a_repeated_resend_is_answered_once_unless_the_printer_read_and_refused(after, words, resent):
+    sender = connected(lines=3)
+    assert sent(sender, 0) == [2, 3, 4]
+    say(sender, "Error:Wrong checksum\r\n\r\nResend:3\r\nok\r\n", 1.0)
+    assert sent(sender, 1.0) == ["NUL", 3, 4]
+    say(sender, f"{words}Resend:3\r\nok\r\n", 1.0 + after)
+    assert sent(sender, 1.0 + after) == (["NUL", 3, 4] if resent else [])
+
+
+def test_a_stall_of_repeated_resends_is_not_given_up_but_a_printer_refusing_all_is():
+    """The firmware asks every 200 ms while nothing arrives (a stalled line): that is no
+    refusal. A printer that refuses everything is given up after max_transmissions go-backs
+    spanning as many timeouts as a silent one takes."""
+    sender = connected(lines=3)
+    sent(sender, 0)
+    say(sender, "Error:Wrong checksum\r\n\r\nResend:2\r\nok\r\n", 0.0)
+    now = 0.0
+    while now < 6.0:  # 6 s of the firmware's repeats; none of the answers arrive
+        sent(sender, now)
+        now = round(now + 0.2, 3)
+        say(sender, "\r\nResend:2\r\nok\r\n", now)
+    with pytest.raises(PrinterNotResponding, match="line 2 .* without being accepted"):
+        while now < 60:  # from now on every answer arrives and is refused at once
+            sent(sender, now)
+            now = round(now + 0.1, 3)
+            say(sender, "Error:Wrong checksum\r\n\r\nResend:2\r\nok\r\n", now)
+    assert now >= (sender.max_transmissions - 1) * sender.timeout
+
+
+def test_a_silent_printer_is_given_up_after_max_transmissions():
+    sender = connected(lines=1)
+    assert sent(sender, 0) == [2]
+    now = 0.0
+    with pytest.raises(PrinterNotResponding, match="line 2 .* sent 8 times"):
+        while now < 60:
+            now = sender.next_deadline()
+            sent(sender, now)
+    assert now == 8 * sender.timeout
+
+
+@pytest.mark.parametrize(
+    "wrong, missing",
+    [
+        ("ok 3\r\n", 3),  # `ok 2` with a damaged digit; line 3 came damaged
+        ("Error:Wrong checksum\r\n\r\nResend:3\r\nok\r\n", 2),  # `Resend:2`, damaged
+        ("ok 2\r\nskip 3\r\nok\r\n", 3),  # `skip 2` (a repeat), damaged into the head's number
+    ],
+)
+def test_a_resend_for_a_line_acknowledged_wrongly_sends_it_again(wrong, missing):
+    """What the printer says is unchecked: a damaged digit can acknowledge a line the printer
+    never queued. When it asks for that line, the host has it and goes back to it."""
+    sender = connected(lines=4)
+    assert sent(sender, 0) == [2, 3, 4, 5]
+    say(sender, wrong, 0.1)
+    sent(sender, 0.1)
+    assert all(line.number > missing for line in sender._lines)  # it believes `missing` is in
+    say(sender, f"Error:expected line {missing} got 4\r\n\r\nResend:{missing}\r\nok\r\n", 0.2)
+    assert sent(sender, 0.2) == ["NUL", *range(missing, 6)]
+    say(sender, "".join(f"ok {n}\r\n" for n in range(missing, 6)) + "wait\r\n", 0.3)
+    sender.request_drained()
+    assert sender.idle and sender.stats.rewinds == 1
+
+
+@pytest.mark.parametrize(
+    "identity, version",
+    [
+        (FIRMWARE, 3),
+        (FIRMWARE.replace("REPETIER", "RE\x10ETIER"), 1),  # damaged: binary V1, as M110 was
+        (FIRMWARE.replace(":3", ":s"), 1),
+        (FIRMWARE.replace(":3", ":2"), 2),
+    ],
+)
+def test_a_damaged_protocol_version_keeps_the_host_binary(identity, version):
+    sender = connected(firmware=identity, lines=1)
+    assert sender.binary_version == version
+    assert sender.poll(0)[0][0] & 0x80  # binary
+
+
+def test_an_m115_answer_lost_to_damage_ends_with_the_printers_wait():
+    """The printer says `wait` every second once idle; that is the end of M115's answer."""
+    sender = connected(firmware="FIBMWARE_NAME:Repetier_1.0.4 REPETIER_PROTOCOL:3", lines=1)
+    for second in range(1, 4):
+        say(sender, "wait\r\n", second)
+        if sent(sender, second):
+            break
+    else:
+        pytest.fail("the host never left waiting for M115's answer")
+    assert second == 1
+
+
+def test_a_resend_for_the_line_after_the_last_quiets_the_printer_and_ends_the_job():
+    """The last line's ok was lost and a NUL became a stray byte: the printer has every line
+    and asks every 200 ms for the next, which will never come. The host sends the NULs that
+    end the firmware's resync (it then says `wait`); two such Resends say it is idle anyway."""
+    sender = connected(lines=2)
+    sender.request_drained()
+    assert sent(sender, 0) == [2, 3]
+    say(sender, "ok 2\r\nError:Checksum required when switching back to ASCII protocol.\r\n"
+        "\r\nResend:4\r\nok\r\n", 0.5)
+    assert sender.poll(0.5) == [host_codec.RESYNC] and not sender.idle
+    say(sender, "\r\nResend:4\r\nok\r\n", 0.7)
+    assert sender.idle

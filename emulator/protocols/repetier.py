@@ -4,13 +4,16 @@ Mirrors Repetier-Firmware's GCode::readFromSerial and checkAndPushCommand (docs/
 section 2): a command whose first byte has bit 7 set is binary (its length follows from its
 first bytes, its Fletcher-16 is checked), any other is an ASCII line; NUL bytes are ignored
 between commands. A numbered command must be last + 1; it is acknowledged `ok <N>` as soon as
-it is queued, before it runs. A repeat less than 40 lines away draws `skip <N>`; any other
-gap, or a damaged command, draws an empty line, `Resend:<last + 1>`, `ok`, and the firmware
-empties its receive buffer. After a binary command the firmware then reads nothing until it
-has seen 31 NUL bytes in a row, so that it restarts on a command boundary.
+it is queued, before it runs. A repeat, at most 39 lines behind the last one, draws
+`skip <N>`; a gap (any line ahead), or a damaged command, draws an empty line,
+`Resend:<last + 1>`, `ok`, and the firmware empties its receive buffer. After a binary
+command the firmware then reads nothing until it has seen 31 NUL bytes in a row, so that it
+restarts on a command boundary.
 
-Time is the shell's: it calls `stalled()` when no byte came for 200 ms while a command was
-half read or a resend is awaited, and `idle()` after a second of quiet with nothing queued.
+Time is the shell's: it calls `stalled()` when it has read no byte for 200 ms while a command
+was half read or a resend is awaited, and `idle()` after a second of that quiet with nothing
+queued. As in the firmware, the quiet counts from the last byte read (`bytes_read` tells the
+shell), not the last byte that arrived: bytes wait unread while the command buffer is full.
 """
 
 from dataclasses import dataclass
@@ -23,7 +26,7 @@ MAX_CMD_SIZE = 96
 GCODE_BUFFER_SIZE = 1  # Repetier.h: one parsed command waits; the rest stays in the RX buffer
 RESYNC_NULS = 30  # waitingForResend after a binary error: it counts down to -1 on 31 NULs
 ASCII_SKIPS = 14  # lines skipped silently in ASCII mode before a gap is an error again
-REPEAT_DISTANCE = 40  # a line this close to the last one is a repeat: skipped, not an error
+REPEAT_DISTANCE = 40  # a line up to 39 behind the last one is a repeat: skipped, not an error
 STALL_TIMEOUT = 0.2  # seconds without a byte before a half-read command is given up
 WAIT_INTERVAL = 1.0  # seconds of quiet, with nothing queued, between `wait` lines
 _U32 = 0xFFFFFFFF
@@ -81,6 +84,9 @@ class RepetierProtocol:
         self._input = bytearray()
         self._command = bytearray()
         self._output = bytearray()
+        # Bytes the firmware has taken from its input (a flush drops the rest unread): its
+        # timeOfLastDataPacket is the moment it last read one, which the shell's timers need.
+        self.bytes_read = 0
 
     # -- receiving ---------------------------------------------------------------------
     def receive_data(self, data: bytes) -> None:
@@ -110,6 +116,7 @@ class RepetierProtocol:
             while position < len(self._input) and self.reading:
                 byte = self._input[position]
                 position += 1
+                self.bytes_read += 1
                 event = self._take(byte)
                 if isinstance(event, CommandRejected):
                     position = len(self._input)  # HAL::serialFlush()
@@ -206,7 +213,10 @@ class RepetierProtocol:
             return EmergencyStop(text)  # before any check: a stop is never refused
         if n is not None:
             if (self.last_line + 1) & 0xFFFF != n & 0xFFFF:
-                if abs(n - self.last_line) < REPEAT_DISTANCE:
+                # static_cast<uint16_t>(lastLineNumber - actLineNumber) < 40: only a line at
+                # or up to 39 behind the last one is a repeat; one ahead is a gap. Compared
+                # modulo 2^16, as a binary N has 16 bits and the counter 32.
+                if (self.last_line - n) & 0xFFFF < REPEAT_DISTANCE:
                     self._say(f"skip {n}", "ok")  # seen already: a repeated resend
                 elif self.waiting_for_resend < 0:
                     return self._request_resend(

@@ -97,8 +97,7 @@ class RepetierSession:
     def feed(self, data: bytes) -> None:
         if self.printer.halted:
             return
-        if data:
-            self._last_data = trio.current_time()
+        read_before = self.protocol.bytes_read
         self.protocol.receive_data(data)
         while (event := self.protocol.next_event()) is not None:
             if isinstance(event, CommandReceived):
@@ -107,6 +106,12 @@ class RepetierSession:
                 self.announce(self.printer.emergency("M112", trio.current_time()))
                 self.journal.record(event.text)
                 break
+        if self.protocol.bytes_read != read_before:
+            # timeOfLastDataPacket: the firmware's timers count from the last byte it read.
+            # Bytes that arrive while its command buffer is full wait unread, so a command
+            # found damaged once the buffer frees draws one Resend now and the next only after
+            # 200 ms more of quiet, not a second one at once.
+            self._last_data = trio.current_time()
         self._send(self.protocol.data_to_send())
         self._wake()
 
@@ -181,7 +186,7 @@ class RepetierSession:
     # -- what the printer says on its own ----------------------------------------------
     async def _watch_the_line(self) -> None:
         """A half-read command or an awaited resend meets silence: ask again (200 ms); an
-        idle printer says `wait` every second."""
+        idle printer says `wait` every second. Silence counts from the last byte read."""
         while True:
             changed = self._changes("line")
             protocol = self.protocol

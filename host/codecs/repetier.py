@@ -39,7 +39,7 @@ class Skip:
 class Identity:
     """M115's first line: `REPETIER_PROTOCOL:<n>` says which binary versions it reads."""
 
-    binary_version: int
+    binary_version: int  # 0 if the line does not say, or says it damaged (no digits)
     text: str
 
 
