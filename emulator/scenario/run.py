@@ -34,6 +34,7 @@ from fake_marlin.host.shell import ClientOptions, PrintSummary, StreamingClient,
 
 # A scenario that has not finished after a simulated day is stuck, whatever it does.
 SIMULATED_TIME_LIMIT = 24 * 3600.0
+FINISHING = 10.0  # simulated seconds the printer runs on after the host is done
 
 
 @dataclass(frozen=True)
@@ -144,6 +145,9 @@ async def _run(scenario: Scenario, sd_dir: Path) -> ScenarioResult:
                     )
                     stream = _Recorder(link.open_host(), wire)
                 result.summary = await _print_reconnecting(link, stream, scenario, options, job)
+                # What the printer was sent it runs even once the host is done: a host misled
+                # by a repeated ok may finish before the last command has run.
+                await trio.sleep(FINISHING)
             except BaseException as raised:  # noqa: BLE001 - the host's failure is the result
                 error = sole_exception(raised)
                 if not isinstance(error, HostError):

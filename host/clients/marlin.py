@@ -12,6 +12,10 @@ class MarlinClient(StreamingClient):
     """Marlin's ASCII protocol: numbered lines, one in flight (see fake_marlin.host.cores.marlin)."""
 
     protocol = "marlin"
+    # An ok means the line ran, but not every ok is the line's: a line can repeat an ok (a USB
+    # adapter that sends a packet twice), and a line whose N was damaged runs bare and says ok
+    # too. Either counts the line in flight done before it ran; both at once, two.
+    acknowledged_ahead = 2
     check_command = staticmethod(marlin.check_command)
 
     def _open(self, options: ClientOptions) -> None:
