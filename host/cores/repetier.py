@@ -64,6 +64,7 @@ from fake_marlin.host.errors import PrinterHalted, PrinterNotResponding, Printer
 from fake_marlin.wire import repetier
 
 RECEIVE_CACHE = 127  # Repetier-Host's receiveCacheSize
+UNKNOWN_RESENDS_MEAN_RESET = 3  # the same Resend for a line long gone: the printer restarted
 KEEPALIVE_MARGIN = 5.0  # seconds of silence allowed once the printer sends busy: (every 2 s)
 IDENTIFY = "M115"
 RESEND_GUARD = 0.5  # s: longer than the firmware's 200 ms between repeated Resends
@@ -137,6 +138,8 @@ class RepetierSender(CommandQueue):
         # Repeated Resends: the one last answered (its number, when), whether an Error: came.
         self._answered: tuple[int | None, float] | None = None
         self._error_seen = False
+        self._unknown_asked: int | None = None  # a Resend for a line the host no longer has
+        self._unknown_asks = 0  # how often in a row
         self._idle_resends = 0  # Resends in a row for the line after the last one there is
 
     # -- what the caller asks -----------------------------------------------------------
@@ -345,6 +348,8 @@ class RepetierSender(CommandQueue):
             )
             if after_all:
                 self._acknowledge(sent[-1], confirmed=False, now=now)  # every line sent is in
+            elif number is not None and self.phase is Phase.STREAM:
+                self._unknown_resend(number)
         if fresh:
             self._answered = (number, now)
             self._go_back(now)
@@ -359,6 +364,20 @@ class RepetierSender(CommandQueue):
                 self._drained = True
         else:
             self._idle_resends = 0
+
+    def _unknown_resend(self, number: int) -> None:
+        """A Resend for a line the host neither has in flight nor keeps: a damaged number, once;
+        asked again and again, a printer that restarted, its `start` lost, and now counts from
+        the beginning (it repeats its Resend every 200 ms while the host's lines do not fit)."""
+        if self._unknown_asked == number:
+            self._unknown_asks += 1
+        else:
+            self._unknown_asked, self._unknown_asks = number, 1
+        if self._unknown_asks >= UNKNOWN_RESENDS_MEAN_RESET:
+            raise PrinterReset(
+                f"the printer asks for line {number}, which this host sent long ago: it "
+                "restarted, and what it had queued is gone"
+            )
 
     def _fresh(self, number: int | None, now: float) -> bool:
         """Whether a Resend asks anew, rather than repeating the one whose answer is on its way
