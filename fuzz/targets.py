@@ -16,6 +16,7 @@ import os
 import re
 import shutil
 import tempfile
+import typing
 from collections.abc import Callable
 
 from fake_marlin.emulator.printer import gcode
@@ -351,8 +352,14 @@ def protocol_detector(data: bytes) -> None:
 
 
 # -- the host's parsers: bytes from the printer -----------------------------------------------
-def _lines_bounded(parser) -> None:
-    assert len(parser._lines._buffer) <= host_lines.MAX_LINE
+def _parse_all(parser, chunks: list[bytes], event: object) -> None:
+    """Feed the host parser the pieces: each event is one its codec declares (`event`, the
+    codec's Event union), and its line buffer stays within MAX_LINE."""
+    kinds = typing.get_args(event)
+    for piece in chunks:
+        for parsed in host_events(parser, piece):
+            assert isinstance(parsed, kinds), parsed
+        assert len(parser._lines._buffer) <= host_lines.MAX_LINE
 
 
 def host_marlin_parser(data: bytes) -> None:
@@ -362,11 +369,7 @@ def host_marlin_parser(data: bytes) -> None:
         return
     choice, chunks = split(data)
     parser = host_marlin.LineParser()
-    for piece in chunks:
-        for event in host_events(parser, piece):
-            assert isinstance(event, (host_marlin.Ok, host_marlin.ResendRequest,
-                                      host_marlin.LineError, host_marlin.Line)), event
-        _lines_bounded(parser)
+    _parse_all(parser, chunks, host_marlin.Event)
     command = printable(data[2:], host_marlin.MAX_COMMAND)
     number = 1 + choice**3  # 1 to 16581376: short numbers and long
     try:
@@ -389,11 +392,7 @@ def host_ultimaker_parser(data: bytes) -> None:
     encodes reaches UltimakerProtocol as the same command."""
     choice, chunks = split(data)
     parser = host_um.FrameParser()
-    for piece in chunks:
-        for event in host_events(parser, piece):
-            assert isinstance(event, (host_um.Ack, host_um.Reject, host_um.RoomInfo,
-                                      host_um.CorruptFrame, host_um.Line)), event
-        _lines_bounded(parser)
+    _parse_all(parser, chunks, host_um.Event)
     seq, room = choice % wire_um.SEQUENCE_MODULUS, (data[0] if data else 0)
     for kind, event in (("o", host_um.Ack(seq, room)), ("r", host_um.Reject(seq, room)),
                         ("q", host_um.RoomInfo(room))):
@@ -416,11 +415,7 @@ def host_repetier_parser(data: bytes) -> None:
         return
     choice, chunks = split(data)
     parser = host_repetier.LineParser()
-    for piece in chunks:
-        for event in host_events(parser, piece):
-            assert isinstance(event, (host_repetier.Ok, host_repetier.Resend, host_repetier.Skip,
-                                      host_repetier.Identity, host_repetier.Line)), event
-        _lines_bounded(parser)
+    _parse_all(parser, chunks, host_repetier.Event)
     command = printable(data[2:], host_marlin.MAX_COMMAND)
     number, version = choice**4, choice % 3  # 0 to 2^32 - 1; ASCII, V1 or V2
     try:
