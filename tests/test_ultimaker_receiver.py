@@ -112,6 +112,14 @@ def test_ff_where_a_field_is_expected_restarts_framing():
     assert feed(protocol, truncated + encode_packet(0, b"M105")) == [CommandReceived(0, "M105")]
 
 
+@pytest.mark.parametrize("extra", [1, 2, 5])
+def test_header_bytes_beyond_two_are_ignored(extra):
+    """readCommand syncs on any run of 0xFF: a packet cut to its first byte (or noise ending in
+    0xFF) in front of the resend must not make the resend's header look like noise."""
+    protocol = UltimakerProtocol()
+    assert feed(protocol, b"\xff" * extra + encode_packet(0, b"M105")) == [CommandReceived(0, "M105")]
+
+
 def test_ff_inside_the_crc_is_data_not_a_header():
     seq, payload = next(
         (s, p)

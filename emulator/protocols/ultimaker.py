@@ -132,8 +132,12 @@ class UltimakerProtocol:
                 S.WAIT_FOR_SEQUENCE_NUMBER if byte == wire.HEADER_BYTE else S.WAIT_FOR_HEADER_BYTE
             )
             return None
-        if state in (S.WAIT_FOR_SEQUENCE_NUMBER, S.WAIT_FOR_PAYLOAD_SIZE, S.WAIT_FOR_PAYLOAD):
-            if byte == wire.HEADER_BYTE:
+        if state is S.WAIT_FOR_SEQUENCE_NUMBER and byte == wire.HEADER_BYTE:
+            # SerialProtocol::readCommand ignores header bytes after the first two, so it
+            # syncs on any run of them: a lone 0xFF left by a cut packet does not desync it.
+            return None
+        if state in (S.WAIT_FOR_PAYLOAD_SIZE, S.WAIT_FOR_PAYLOAD):
+            if byte == wire.HEADER_BYTE:  # BREAK_ON_HEADER_BYTE: a new packet starts
                 self.state = S.WAIT_FOR_SECOND_HEADER_BYTE
                 return None
         if state is S.WAIT_FOR_SEQUENCE_NUMBER:
