@@ -144,14 +144,27 @@ def test_timeouts_count_silence_not_age():
 
 
 def test_a_full_planner_buys_patience_until_room_is_reported_again():
-    window, _ = loaded(4, timeout=2.0, long_timeout=60.0)
+    window, _ = loaded(4, timeout=2.0, long_timeout=60.0, received_timeout=10.0)
     window.poll(0.0)
     window.on_ack(0, 0, (), 0.0)  # planner full: the next o comes when a move finishes
     window.poll(0.0)
-    assert window.poll(30.0) == []
-    window.heard(30.0, room=1)  # the q frame
-    assert window.next_deadline() == 32.0
-    assert seqs(window.poll(32.0)) == [1, 2, 3]
+    assert window.poll(9.0) == []  # not the 2 s of a printer with room
+    window.heard(9.0, room=1)  # the q frame
+    assert window.next_deadline() == 11.0
+    assert seqs(window.poll(11.0)) == [1, 2, 3]
+
+
+def test_a_full_planner_is_probed_and_given_up_on_only_after_long_silence():
+    # The o or q that said the planner had room again may be the frame that got damaged.
+    window, _ = loaded(4, timeout=2.0, long_timeout=100.0, received_timeout=10.0, max_transmissions=2)
+    window.poll(0.0)
+    window.on_ack(0, 0, (), 0.0)
+    window.poll(0.0)
+    assert window.next_deadline() == 30.0  # three received_timeouts: longer than a slow move
+    for probe in (30.0, 60.0, 90.0):  # past max_transmissions: still only probes
+        assert seqs(window.poll(probe)) == [1, 2, 3]
+    with pytest.raises(PrinterNotResponding):
+        window.poll(120.0)
 
 
 def test_a_long_command_at_the_head_buys_patience():
@@ -201,3 +214,12 @@ def test_a_printer_that_refuses_forever_is_given_up_on():
             window.on_reject(0, 15, now=now)
             now = window.next_deadline() or now
             window.poll(now)
+
+
+def test_a_full_planner_of_slow_moves_is_probed_only_after_three_moves_time():
+    window, _ = loaded(4, timeout=2.0, received_timeout=10.0)
+    window.poll(0.0)
+    window.on_ack(0, 0, (), 0.0)
+    window.poll(0.0)
+    window.on_ack(1, 0, (), 40.0)  # a move takes 40 s
+    assert window.next_deadline() == 40.0 + 3 * 40.0

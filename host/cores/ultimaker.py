@@ -10,12 +10,15 @@ make a command run twice; these rules only decide how fast a loss is repaired:
   before we connected, so the packets are renumbered from NN. After the first answer the same
   means the printer was reset; renumbering then could run a command twice, so it is an error.
 - When the printer has been silent for `timeout` since a packet was sent, the packet is sent
-  again with all after it. Silence is expected while the printer is busy (its planner is full,
-  or the command it is executing is a long one such as G28, M400 or M109), so then the wait
-  is `long_timeout`: generous, because M400 behind a full planner of slow moves, or heating,
-  takes minutes. It rarely costs anything: a packet lost behind a long command is still caught
-  at once by the `r` its successor draws. A packet known to have arrived whose `o` never comes (lost on the way back)
-  counts as done after `received_timeout` of silence.
+  again with all after it. Silence is expected while the printer executes a long command
+  (G28, M400, M109...), so then the wait is `long_timeout`: generous, because M400 behind a
+  full planner of slow moves, or heating, takes minutes. It rarely costs anything: a packet
+  lost behind a long command is still caught at once by the `r` its successor draws.
+- A full planner is silent only until a move ends, and the room last heard may be stale (the
+  `o` or `q` that said otherwise was damaged), so it is probed after three moves' time (at
+  least three `received_timeout`), and given up on only after `long_timeout` of silence.
+- A packet known to have arrived whose `o` never comes (lost on the way back) counts as done
+  after `received_timeout` of silence.
 """
 
 import math
@@ -25,6 +28,8 @@ from enum import Enum, auto
 from fake_marlin.host.cores.queue import CommandQueue, Ticket, is_long_command
 from fake_marlin.host.errors import PrinterNotResponding, PrinterReset
 from fake_marlin.wire.ultimaker import next_seq, seq_distance
+
+PROBE_MOVES = 3  # a full planner is probed after this many moves' time (or received_timeouts)
 
 
 class PacketState(Enum):
@@ -82,6 +87,8 @@ class GoBackNWindow(CommandQueue):
         self._hold_until = -math.inf  # no (re)transmission before this
         self._last_heard = -math.inf
         self._printer_room: int | None = None
+        self._last_ack_at: float | None = None
+        self._ack_interval = 0.0  # between the last two `o` frames: how long a move takes
 
     # -- what the caller asks -----------------------------------------------------------
     @property
@@ -104,14 +111,30 @@ class GoBackNWindow(CommandQueue):
             timed.append(self._in_flight[0])  # they complete in order: only the head matters
         return timed
 
+    def _long_running(self) -> bool:
+        return bool(self._in_flight) and is_long_command(self._in_flight[0].ticket.text)
+
     def _due(self, packet: "_Packet") -> float:
-        busy = self._printer_room == 0 or (
-            bool(self._in_flight) and is_long_command(self._in_flight[0].ticket.text)
-        )
-        patience = self.long_timeout if busy else self.timeout
+        if self._long_running():
+            patience = self.long_timeout
+        elif self._printer_room == 0:
+            # A full planner is silent until a move ends (then `q` or an `o`): about as long as
+            # moves have been taking. The room we last saw may be stale, the `o` or `q` that
+            # said otherwise damaged on the way; sending again is safe (the printer never runs
+            # a packet twice), so look well before `long_timeout`.
+            patience = PROBE_MOVES * max(self.received_timeout, self._ack_interval)
+        else:
+            patience = self.timeout
         if packet.state is PacketState.RECEIVED:
             patience = max(patience, self.received_timeout)
         return max(packet.since, self._last_heard) + patience
+
+    def _may_give_up(self, now: float) -> bool:
+        """A printer with a full planner may be silent for a slow move's length: give up on
+        it only after `long_timeout` of silence, however many probes went unanswered."""
+        if self._printer_room == 0 and not self._long_running():
+            return now - self._last_heard >= self.long_timeout
+        return True
 
     def heard(self, now: float, room: int | None = None) -> None:
         """The printer said something (any valid line or frame); `room` if it told its room."""
@@ -151,7 +174,7 @@ class GoBackNWindow(CommandQueue):
             break
         for index, packet in enumerate(self._in_flight):
             if packet.state is PacketState.SENT and not packet.needs_transmit and self._due(packet) <= now:
-                if packet.transmissions >= self.max_transmissions:
+                if packet.transmissions >= self.max_transmissions and self._may_give_up(now):
                     raise PrinterNotResponding(
                         f"no answer to {packet.ticket.text!r} after {packet.transmissions} tries; "
                         "is a printer speaking this protocol on the port?"
@@ -168,6 +191,9 @@ class GoBackNWindow(CommandQueue):
     def on_ack(self, seq: int, room: int, response: tuple[str, ...], now: float) -> list[Ticket]:
         """An `o` frame; returns the tickets it completes, oldest first."""
         self.heard(now, room)
+        if self._last_ack_at is not None:
+            self._ack_interval = now - self._last_ack_at
+        self._last_ack_at = now
         position = self._position(seq)
         if position is None or position >= len(self._in_flight):
             return []  # an echo of something already settled
