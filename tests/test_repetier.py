@@ -21,7 +21,7 @@ from fake_marlin.emulator.server.lifecycle import ServerConfig
 from fake_marlin.host.codecs import repetier as host_codec
 from fake_marlin.host.connect import connect
 from fake_marlin.host.cores.repetier import RepetierSender
-from fake_marlin.host.errors import PrinterNotResponding
+from fake_marlin.host.errors import PrinterNotResponding, PrinterReset
 from fake_marlin.wire import repetier
 from fake_marlin.wire.gcode import canonical
 from tests.conftest import running_printer
@@ -487,3 +487,23 @@ def test_a_resend_for_the_line_after_the_last_quiets_the_printer_and_ends_the_jo
     assert sender.poll(0.5) == [host_codec.RESYNC] and not sender.idle
     say(sender, "\r\nResend:4\r\nok\r\n", 0.7)
     assert sender.idle
+
+
+def test_a_resend_for_the_next_line_not_yet_sent_is_no_restart():
+    """A stall toward the host brings the oks for every line out at once, behind them the
+    printer's Resend, repeated, for the line after: the one the host had not sent yet."""
+    sender = connected(lines=40)
+    window = sent(sender, 0)
+    after = window[-1] + 1
+    say(sender, "".join(f"ok {n}\r\n" for n in window) + f"\r\nResend:{after}\r\nok\r\n" * 5, 5.0)
+    assert sent(sender, 5.0)[:2] == ["NUL", after]
+
+
+def test_the_same_resend_for_a_line_the_host_never_had_means_the_printer_restarted():
+    """Its `start` lost: it counts from somewhere the host is not, and asks every 200 ms."""
+    sender = connected(lines=3)
+    window = sent(sender, 0)
+    say(sender, "".join(f"ok {n}\r\n" for n in window), 0.5)
+    say(sender, "\r\nResend:200\r\nok\r\n" * 2, 1.0)  # once or twice: a damaged number
+    with pytest.raises(PrinterReset, match="asks for line 200"):
+        say(sender, "\r\nResend:200\r\nok\r\n", 1.2)

@@ -342,12 +342,19 @@ class RepetierSender(CommandQueue):
             self._rewind(back)
             fresh = True
         else:
+            # The line after the last one sent (or, with none out, the next one to go): the
+            # printer has everything sent and wants more. Not a line long gone.
             sent = [i for i, line in enumerate(self._lines) if line.transmissions]
-            after_all = sent and number is not None and (
-                (self._wire(self._lines[sent[-1]]) + 1) & WIRE_NUMBER == number & WIRE_NUMBER
+            if sent:
+                following = self._lines[sent[-1]].number + 1
+            else:
+                following = self._lines[0].number if self._lines else self._next_number
+            after_all = number is not None and (
+                following & WIRE_NUMBER == number & WIRE_NUMBER
             )
             if after_all:
-                self._acknowledge(sent[-1], confirmed=False, now=now)  # every line sent is in
+                if sent:
+                    self._acknowledge(sent[-1], confirmed=False, now=now)  # every line sent is in
             elif number is not None and self.phase is Phase.STREAM:
                 self._unknown_resend(number)
         if fresh:
