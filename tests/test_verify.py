@@ -73,6 +73,11 @@ def problems(job: list[str], journal: list[str]) -> list[tuple]:
     pytest.param(JOB, ["", " G28\r", *RUN[1:], ""], [], id="blank lines and CRLF in the journal"),
     pytest.param(JOB, ["G28", "", "G1 X2"], [(MISSING, 4, None), (MISSING, 6, None),
                                              (MISSING, 7, None)], id="journal lines keep their numbers"),
+    # A binary protocol brings commands back in its own spelling (found by fuzzing).
+    pytest.param(["T00", "M0117 Hi", "M117  Hi there", "M23 part.gco"],
+                 ["T0", "M117 Hi", "M117 Hi there", "M23  part.gco"], [], id="one spelling"),
+    pytest.param(["M117 Hi  there"], ["M117 Hi there"], [(DAMAGED, 1, 1)],
+                 id="a message's own spaces count"),
 ])
 def test_cases(job, journal, expected):
     assert problems(job, journal) == expected

@@ -25,6 +25,7 @@ NUMBER = r"[-+]?(?:\d+(?:\.\d*)?|\.\d+)"  # a G-code number: no exponents, no un
 # between \d+ and \d*: exponential, minutes for a 93-character line; found by fuzzing.)
 WORD = re.compile(rf"([A-Za-z])\s*({NUMBER})?")  # a letter and its value, if it has one
 _WORDS = re.compile(rf"(?:\s*[A-Za-z]\s*(?:{NUMBER})?)+\s*")
+_TEXT_COMMAND = re.compile(r"([A-Za-z])(\d+)\s*(.*)", re.DOTALL)  # M117 and the like: word, text
 
 
 def float32(value: float) -> float:
@@ -53,19 +54,25 @@ def number_text(value: float) -> str:
 def canonical(command: str) -> str:
     """One spelling for a command however a host or a wire format wrote it: parameters in
     alphabetical order, numbers as the float32 the firmware keeps (`X10.0`, `X10`, `X10.000001`
-    are one command), a command word without leading zeros. Text arguments (M117 messages, file
-    names) and lines that are not plain words stay as they are."""
+    are one command), a command word (G, M, T) without leading zeros. A text argument (an M117
+    message, a file name) is kept as the firmware reads it; other lines that are not plain words
+    stay as they are."""
     text = strip_comment(command)
+    if (match := _TEXT_COMMAND.fullmatch(text)) and (
+        (head := f"{match[1]}{int(match[2])}").upper() in TEXT_ARGUMENT_CODES
+    ):
+        # The firmwares take the text from the first character after the number and the
+        # spaces that follow it (Marlin's string_arg; Repetier's parseAscii, and its binary
+        # text field holds just that).
+        return f"{head} {match[3]}" if match[3] else head
     if not _WORDS.fullmatch(text):
         return text
     words = WORD.findall(text)
     letter, number = words[0]
-    if letter.upper() in "GM" and number and number.isdigit():
+    if letter.upper() in "GMT" and number and number.isdigit():
         head = f"{letter}{int(number)}"
     else:
         head = letter + number
-    if head.upper() in TEXT_ARGUMENT_CODES:
-        return text
     params = sorted(words[1:], key=lambda word: word[0])
     return " ".join([head] + [letter + _number(value) for letter, value in params])
 
