@@ -88,6 +88,15 @@ def test_an_endless_line_does_not_grow_memory_without_bound():
     assert len(events) == 2 and all(len(e.text) == MAX_LINE for e in events)
 
 
+def test_a_line_too_long_is_cut_even_when_its_end_comes_in_the_same_read():
+    parser = FrameParser()
+    parser.receive_data(b"x" * (MAX_LINE + 10) + b"\n")
+    events = []
+    while (event := parser.next_event()) is not None:
+        events.append(event)
+    assert [len(e.text) for e in events] == [MAX_LINE, 10]
+
+
 @pytest.mark.parametrize("command", ["", "G1 X" + "1" * 100, "M117 Grüße", "M117 tab\there"])
 def test_unsendable_commands_are_the_callers_error(command):
     with pytest.raises(CommandError):

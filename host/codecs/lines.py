@@ -12,7 +12,7 @@ class LineBuffer:
 
     def next_line(self) -> bytes | None:
         """The next line without its line feed, or None until one is complete."""
-        end = self._buffer.find(b"\n")
+        end = self._buffer.find(b"\n", 0, MAX_LINE + 1)  # a line feed further on ends a piece
         if end < 0:
             if len(self._buffer) <= MAX_LINE:
                 return None
