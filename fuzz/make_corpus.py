@@ -112,16 +112,17 @@ WHOLE_INPUTS: dict[str, dict[str, bytes]] = {  # targets that take the input as 
 
 # Inputs of the bugs found and reported (fuzz.targets.KNOWN): fuzz/known/<target>/<bug>.
 SCENARIO = '[printer]\nprotocol = "marlin"\n'
-KNOWN = {
-    "host_repetier_parser": {
-        "canonical-command-zeros": b"\x80\x04T00",
-        "repetier-text-spaces": b"\x80\x05M117  Hello",
-    },
-    "host_marlin_parser": {"host-long-line": WHOLE + b"Resend: " + b"9" * 4400 + b"\n"},
-}
+KNOWN: dict[str, dict[str, bytes]] = {}
 # Inputs of the bugs found and fixed: seeds of the corpus from then on, so that every test run
 # tries them again.
 FIXED = {
+    "host_repetier_parser": {  # canonical(): one spelling for T00 and T0, M117's text as read
+        "canonical-command-zeros": b"\x80\x04T00",
+        "repetier-text-spaces": b"\x80\x05M117  Hello",
+    },
+    "host_marlin_parser": {  # a line over MAX_LINE in one read, 4,400 digits in its number
+        "host-long-line": WHOLE + b"Resend: " + b"9" * 4400 + b"\n",
+    },
     "repetier_receiver": {  # N1 G1 X<FLT_MAX>, its checksum right
         "repetier-float-overflow": WHOLE + bytes.fromhex("8d00010001ffff7f7f8e84"),
     },

@@ -13,7 +13,6 @@ the modules state. `assert` is the check: do not run the fuzzer with `python -O`
 
 import atexit
 import os
-import re
 import shutil
 import tempfile
 import typing
@@ -40,28 +39,13 @@ from fake_marlin.wire.gcode import canonical, remove_paren_comments, strip_comme
 # Each has its input in fuzz/known/<target>/<name>, which tests/test_fuzz.py expects to fail
 # until the bug is fixed. By default the targets find them again like any other bug; with
 # FUZZ_SKIP_KNOWN=1 they step around them, so that a campaign can look past them.
-KNOWN = {
-    "canonical-command-zeros": "wire.gcode.canonical: T00 and T0, M0117 Hi and M117 Hi stay two "
-    "spellings (G01 and G1 are one)",
-    "repetier-text-spaces": "wire.repetier.from_gcode: `M117  Hi` goes binary as `M117 Hi`, so the "
-    "journals disagree",
-    "host-long-line": "host.codecs.lines.LineBuffer: a line longer than MAX_LINE that comes in one "
-    "read with its line feed is not cut, and 4301 digits in it raise ValueError from int()",
-}
+KNOWN: dict[str, str] = {}  # none open: the last three were fixed in canonical() and LineBuffer
 SKIP_KNOWN = os.environ.get("FUZZ_SKIP_KNOWN") == "1"
 
 
 def known(hit: bool) -> bool:
     """Whether to step around a known bug here: only when told to."""
     return SKIP_KNOWN and hit
-
-
-def command_zeros(text: str) -> bool:
-    return re.match(r"\s*[MmTt]0\d", text) is not None
-
-
-def text_spaces(text: str) -> bool:
-    return re.match(r"\s*M\d+\s\s", text) is not None
 
 
 # -- helpers ----------------------------------------------------------------------------------
@@ -365,8 +349,6 @@ def _parse_all(parser, chunks: list[bytes], event: object) -> None:
 def host_marlin_parser(data: bytes) -> None:
     """host LineParser (Marlin); and a line the host encodes must reach MarlinProtocol as the
     same command with the same number."""
-    if known(len(data) > host_lines.MAX_LINE):  # host-long-line (longer than -max_len anyway)
-        return
     choice, chunks = split(data)
     parser = host_marlin.LineParser()
     _parse_all(parser, chunks, host_marlin.Event)
@@ -411,8 +393,6 @@ def host_ultimaker_parser(data: bytes) -> None:
 def host_repetier_parser(data: bytes) -> None:
     """host LineParser (Repetier); a command the host encodes (binary where it fits) reaches
     RepetierProtocol as the same command, by canonical() as the journals compare them."""
-    if known(len(data) > host_lines.MAX_LINE):  # host-long-line (longer than -max_len anyway)
-        return
     choice, chunks = split(data)
     parser = host_repetier.LineParser()
     _parse_all(parser, chunks, host_repetier.Event)
@@ -428,8 +408,6 @@ def host_repetier_parser(data: bytes) -> None:
     printer.receive_data(wire)
     event = printer.next_event()
     if isinstance(event, rep.CommandReceived):
-        if known(command_zeros(command) or text_spaces(command)):
-            return
         assert event.binary == binary and event.line_number == number & 0xFFFF, (wire, event)
         assert canonical(event.text) == canonical(command), (wire, event, command)
     else:
@@ -496,7 +474,7 @@ def repetier_binary(data: bytes) -> None:
     assert wire_rep.command_size(encoded[:5]) == len(encoded), encoded.hex()
     assert repr(wire_rep.decode(encoded)) == repr(command), encoded.hex()  # repr: NaN == NaN
     again = wire_rep.from_gcode(text, command.n, command.v2)
-    if again is not None and not known(text_spaces(text)):
+    if again is not None:
         assert canonical(wire_rep.to_gcode(again)) == canonical(text), (text, again)
 
 
