@@ -1,0 +1,392 @@
+"""The bench's sections. Each measures its figures side by side with a reference in the same
+run and returns a report.Section; none asserts anything (a missed goal is a figure, not an
+error).
+
+The line conditions (--baud, --latency-ms) run on the printer's simulated clock, like all its
+time. Where a section needs them in wall time while the moves must not be what limits the rate,
+it runs the printer faster and scales them: `--speed 100 --baud 2500` is a 250000-baud line in
+wall time, with motion 100 times faster than a real printer's (0.4 mm at 100 mm/s is 18 ms of
+acceleration-bound motion: 54 moves/s at --speed 1, below the wire's rate).
+"""
+
+import os
+import statistics
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+from fake_marlin.emulator.bench import jobs
+from fake_marlin.emulator.bench.procs import BenchError, Processes, fake_marlin
+from fake_marlin.emulator.bench.report import Row, Section, rate
+from fake_marlin.emulator.bench.runs import (
+    BARE,
+    Host,
+    Run,
+    Target,
+    collect,
+    describe_error,
+    exactly_once,
+    octoprint,
+    our_host,
+    printcore,
+    printer,
+    start_host,
+    start_printer,
+    stream,
+    write_job,
+)
+from fake_marlin.host import ClientOptions
+from fake_marlin.host.codecs import ultimaker as ultimaker_codec
+from fake_marlin.wire import ultimaker as ultimaker_wire
+
+SPEED = "1000"  # simulated time for throughput runs: the moves never limit the rate
+WIRE_BAUD = 250000
+BAUD_SPEED = 100
+LATENCY_MS = 30.0
+LATENCY_SPEED = 10
+
+
+@dataclass(frozen=True)
+class Options:
+    quick: bool
+    moves: int  # the throughput job
+    rounds: int  # side-by-side rounds of each throughput pair
+    only: tuple[str, ...]
+
+
+class Bench:
+    def __init__(self, options: Options, procs: Processes, workdir: Path) -> None:
+        self.options = options
+        self.procs = procs
+        self.workdir = workdir
+        self._pairs: dict[str, tuple[list[Run], list[Run]]] = {}
+
+    def pair(self, host: Host, first: Target, second: Target, job: list[str],
+             path: Path) -> tuple[list[Run], list[Run]]:
+        """`rounds` runs against each target, alternating which goes first (ABBA...) so that
+        the machine's drift during the pair falls on both alike. Cached per host: the hosts and
+        cpu sections share our Marlin host's runs."""
+        key = f"{host.key}:{first.label}:{second.label}:{len(job)}"
+        if key not in self._pairs:
+            firsts: list[Run] = []
+            seconds: list[Run] = []
+            for round_ in range(self.options.rounds):
+                order = [(first, firsts), (second, seconds)]
+                for target, runs in order if round_ % 2 == 0 else order[::-1]:
+                    runs.append(stream(self.procs, host, target, path, len(job)))
+            self._pairs[key] = (firsts, seconds)
+        return self._pairs[key]
+
+    def throughput_job(self) -> tuple[list[str], Path]:
+        job = jobs.short_moves(self.options.moves)
+        return job, write_job(self.workdir, f"short-{len(job)}", job)
+
+
+def _summary(runs: list[Run]) -> dict:
+    """The median rate of complete rounds; complete only if every round was."""
+    rates = [run.rate for run in runs if run.rate is not None]
+    return {"cmd_per_s": statistics.median(rates) if rates else None,
+            "complete": bool(runs) and all(run.complete for run in runs),
+            "acknowledged": min((run.acknowledged for run in runs), default=0),
+            "job": runs[0].job if runs else 0, "runs": [run.as_dict() for run in runs]}
+
+
+def _figure(summary: dict) -> str:
+    if summary["complete"]:
+        return rate(summary["cmd_per_s"])
+    errors = [run["error"] for run in summary["runs"] if run["error"]]
+    why = f": {errors[0][:160]}" if errors else ""
+    return f"incomplete, {summary['acknowledged']}/{summary['job']} acknowledged{why}"
+
+
+def _ratio(value: float | None, reference: float | None) -> float | None:
+    return value / reference if value is not None and reference else None
+
+
+# -- 1. host throughput ---------------------------------------------------------------------
+HOST_GOALS = {"ours-marlin": 0.9, "octoprint": 0.95}
+ULTIMAKER_GOAL = 5000.0
+
+
+def hosts(bench: Bench) -> Section:
+    job, path = bench.throughput_job()
+    rounds = bench.options.rounds
+    section = Section("hosts", f"Host throughput: {len(job)} moves of 0.4 mm, "
+                      + (f"median of {rounds} rounds" if rounds > 1 else "one round"),
+                      ("host", "cmd/s to fake-marlin", "cmd/s to bare responder"))
+    marlin = printer("marlin", "--speed", SPEED)
+    for host in (our_host("marlin"), octoprint(), printcore()):
+        if host.command is None:
+            section.rows.append(Row(host.label, host.missing, data={"host": host.key,
+                                                                   "installed": False}))
+            continue
+        emulated, bare = (_summary(runs) for runs in bench.pair(host, marlin, BARE, job, path))
+        ratio = _ratio(emulated["cmd_per_s"], bare["cmd_per_s"])
+        goal = HOST_GOALS.get(host.key)
+        complete = emulated["complete"] and bare["complete"]
+        section.rows.append(Row(
+            host.label, _figure(emulated), _figure(bare), ratio,
+            f"ratio ≥ {goal}" if goal else "—",
+            None if goal is None else complete and ratio is not None and ratio >= goal,
+            {"host": host.key, "installed": True, "fake_marlin": emulated, "bare": bare},
+        ))
+    ultimaker = our_host("ultimaker")
+    runs = [stream(bench.procs, ultimaker, printer("ultimaker", "--speed", SPEED), path, len(job))
+            for _ in range(bench.options.rounds)]
+    emulated = _summary(runs)
+    value = emulated["cmd_per_s"]
+    section.rows.append(Row(
+        ultimaker.label, _figure(emulated), "— (no bare Ultimaker peer)", None,
+        f"≥ {ULTIMAKER_GOAL:,.0f} cmd/s",
+        emulated["complete"] and value is not None and value >= ULTIMAKER_GOAL,
+        {"host": ultimaker.key, "installed": True, "fake_marlin": emulated, "bare": None},
+    ))
+    section.notes.append(f"fake-marlin runs at --speed {SPEED}; the bare responder "
+                         "(fake_marlin.emulator.bench.responder) answers each line at once and "
+                         "simulates nothing; every host and printer is a process of its own; "
+                         "the time is the job's alone (connecting excluded)")
+    return section
+
+
+# -- 2. CPU per command ---------------------------------------------------------------------
+def cpu(bench: Bench) -> Section:
+    job, path = bench.throughput_job()
+    section = Section("cpu", f"Printer CPU per command: our host, Marlin, {len(job)} moves",
+                      ("process", "µs CPU per command", "bare responder"))
+    runs = bench.pair(our_host("marlin"), printer("marlin", "--speed", SPEED), BARE, job, path)
+    emulated, bare = ([run.printer_cpu / run.job * 1e6 for run in side
+                       if run.complete and run.printer_cpu is not None] for side in runs)
+    if not emulated or not bare:
+        section.rows.append(Row("fake-marlin", "not measured: a run was incomplete"))
+        return section
+    mine, reference = statistics.median(emulated), statistics.median(bare)
+    ratio = _ratio(mine, reference)
+    data = {"fake_marlin_us": mine, "bare_us": reference, "rounds": len(emulated)}
+    section.rows.append(Row("fake-marlin --protocol marlin", f"{mine:.1f} µs",
+                            f"{reference:.1f} µs", ratio, "ratio ≤ 2", ratio is not None and
+                            ratio <= 2, data))
+    section.rows.append(Row("fake-marlin, absolute", f"{mine:.1f} µs", "—", None,
+                            "≤ 100 µs (unloaded machine)", mine <= 100, data))
+    section.notes.append(f"the printer process's own CPU time (user + system, /proc) while the "
+                         f"job ran, over the job's commands; load average "
+                         f"{os.getloadavg()[0]:.2f} on {os.cpu_count()} CPUs")
+    return section
+
+
+# -- 3. paced at 250000 baud ------------------------------------------------------------------
+def baud(bench: Bench) -> Section:
+    job = jobs.short_moves(150 if bench.options.quick else 600)
+    path = write_job(bench.workdir, f"baud-{len(job)}", job)
+    section = Section("baud", f"Ultimaker at {WIRE_BAUD} baud: {len(job)} moves of 0.4 mm",
+                      ("host", "packets/s", "wire limit"))
+    to_printer = statistics.mean(len(ultimaker_codec.encode_command(1, c)) for c in job)
+    to_host = len(f"\n{ultimaker_wire.frame_body('o', 1, 15)}\n")  # one `o` frame per packet
+    limit = WIRE_BAUD / 10 / max(to_printer, to_host)
+    target = printer("ultimaker", "--speed", str(BAUD_SPEED), "--baud",
+                     str(WIRE_BAUD // BAUD_SPEED))
+    run = stream(bench.procs, our_host("ultimaker"), target, path, len(job))
+    packets = run.summary.get("packets_sent")
+    measured = packets / run.elapsed if run.complete and run.elapsed and packets else None
+    figure = rate(measured, "packets/s") if measured else _figure(_summary([run]))
+    section.rows.append(Row(
+        "our host, Ultimaker", figure, f"{limit:,.0f} packets/s", _ratio(measured, limit),
+        "—", None,
+        {"packets_per_s": measured, "wire_limit": limit, "bytes_to_printer": to_printer,
+         "bytes_to_host": to_host, "run": run.as_dict()},
+    ))
+    section.notes.append(
+        f"the limit: {WIRE_BAUD // 10:,} bytes/s over the busier direction's bytes per packet "
+        f"({to_printer:.1f} to the printer, {to_host} back); the printer runs at --speed "
+        f"{BAUD_SPEED} --baud {WIRE_BAUD // BAUD_SPEED} (pacing is in simulated time, so that "
+        f"is {WIRE_BAUD} baud of wall time, and the moves do not limit the rate)")
+    return section
+
+
+# -- 4. 30 ms latency -------------------------------------------------------------------------
+def latency(bench: Bench) -> Section:
+    job = jobs.short_moves(40 if bench.options.quick else 200)
+    path = write_job(bench.workdir, f"latency-{len(job)}", job)
+    section = Section("latency", f"{LATENCY_MS:.0f} ms latency each way: {len(job)} moves",
+                      ("host", "cmd/s", "reference"))
+    extra = ("--speed", str(LATENCY_SPEED), "--latency-ms", str(LATENCY_MS * LATENCY_SPEED))
+    window = ClientOptions().window
+    windowed = stream(bench.procs, our_host("ultimaker"), printer("ultimaker", *extra), path,
+                      len(job))
+    waiting = stream(bench.procs, our_host("marlin"), printer("marlin", *extra), path, len(job))
+    round_trip = 2 * LATENCY_MS / 1000
+    u, m = windowed.rate, waiting.rate
+    u_text, m_text = (_figure(_summary([run])) for run in (windowed, waiting))
+    section.rows += [
+        Row(f"Ultimaker, windowed ({window} in flight)", u_text,
+            f"{m_text} (Marlin, stop-and-wait)", _ratio(u, m),
+            data={"ultimaker": windowed.as_dict(), "marlin": waiting.as_dict()}),
+        Row("Ultimaker against its bound", u_text,
+            f"{window / round_trip:,.1f} cmd/s (window / round trip)",
+            _ratio(u, window / round_trip)),
+        Row("Marlin against its bound", m_text, f"{1 / round_trip:,.1f} cmd/s (1 / round trip)",
+            _ratio(m, 1 / round_trip)),
+    ]
+    section.notes.append(f"the printer runs at --speed {LATENCY_SPEED} --latency-ms "
+                         f"{LATENCY_MS * LATENCY_SPEED:.0f}: {LATENCY_MS:.0f} ms of wall time")
+    return section
+
+
+# -- 5. one simulated hour --------------------------------------------------------------------
+def simhour(bench: Bench) -> Section:
+    hours = 1 / 6 if bench.options.quick else 1.0
+    job = jobs.long_moves(jobs.long_moves_for(3600 * hours))
+    path = write_job(bench.workdir, f"long-{len(job)}", job)
+    simulated = jobs.simulated_seconds(job)
+    section = Section("simhour", f"One simulated hour: {len(job) - 1} moves of 200 mm at "
+                      f"50 mm/s and M400 ({simulated / 60:.0f} simulated minutes), --speed "
+                      f"{SPEED}", ("printer", "wall s per simulated hour", "ideal"))
+    run = stream(bench.procs, our_host("marlin"), printer("marlin", "--speed", SPEED), path,
+                 len(job))
+    ideal = 3600 / float(SPEED)
+    per_hour = run.elapsed * 3600 / simulated if run.complete and run.elapsed else None
+    section.rows.append(Row(
+        "fake-marlin --protocol marlin, our host", f"{per_hour:.2f} s" if per_hour else
+        _figure(_summary([run])), f"{ideal:.2f} s (3600 / speed)", _ratio(per_hour, ideal),
+        data={"wall_s_per_sim_hour": per_hour, "simulated_s": simulated, "run": run.as_dict()},
+    ))
+    section.notes.append("simulated time is the printer model's own motion time for the job "
+                         "(emulator/printer/planner.py), the wall time the host's, start to the "
+                         "M400's ok")
+    return section
+
+
+# -- 6. farms ---------------------------------------------------------------------------------
+IDLE_CPU_GOAL = 5.0  # % of one core
+MEMORY_GOAL = 1 << 20  # bytes per printer
+FARM_RATE_GOAL = 50.0  # cmd/s for each printer
+FARM_START_TIMEOUT = 180.0
+
+
+def _farm(count: int, *extra: str) -> Target:
+    return Target(f"fake-marlin --printers {count}",
+                  fake_marlin("--printers", str(count), "--protocol", "marlin", *extra))
+
+
+def farm(bench: Bench) -> Section:
+    quick = bench.options.quick
+    idle_count, streaming, moves = (50, 10, 100) if quick else (200, 50, 300)
+    section = Section("farm", f"Farms: {idle_count} printers idle, {streaming} streaming "
+                      f"{moves} moves each", ("figure", "measured", "reference"))
+    try:
+        _farm_idle(bench, section, idle_count)
+        _farm_streaming(bench, section, streaming, moves)
+    except BenchError as error:
+        text = str(error)
+        if "--printers" in text or "unrecognized" in text:
+            text = f"fake-marlin has no --printers yet ({text})"
+        section.rows.append(Row("fake-marlin --printers N", f"not available: {text}",
+                                data={"available": False}))
+    return section
+
+
+def _farm_idle(bench: Bench, section: Section, count: int) -> None:
+    window = 2.0 if bench.options.quick else 5.0
+    one, _ = _start_farm(bench, _farm(1), 1)
+    many, _ = _start_farm(bench, _farm(count), count)
+    try:
+        time.sleep(1.0)  # past the start-up's own work
+        before = (one.cpu_seconds(), many.cpu_seconds(), time.monotonic())
+        time.sleep(window)
+        after = (one.cpu_seconds(), many.cpu_seconds(), time.monotonic())
+        wall = after[2] - before[2]
+        one_cpu, many_cpu = ((b - a) / wall * 100 for a, b in zip(before[:2], after[:2]))
+        rss_one, rss_many = one.rss_bytes(), many.rss_bytes()
+    finally:
+        bench.procs.stop(many)
+        bench.procs.stop(one)
+    per_printer = (rss_many - rss_one) / (count - 1)
+    section.rows += [
+        Row(f"{count} printers idle: CPU", f"{many_cpu:.2f} % of one core",
+            f"{one_cpu:.2f} % (1 printer)", None, f"< {IDLE_CPU_GOAL:.0f} %",
+            many_cpu < IDLE_CPU_GOAL, {"cpu_percent": many_cpu, "one_cpu_percent": one_cpu,
+                                       "seconds": wall}),
+        Row("memory per printer after the first", f"{per_printer / 2**20:.2f} MB",
+            f"{rss_one / 2**20:.1f} MB (RSS, 1 printer)", None, "< 1 MB",
+            per_printer < MEMORY_GOAL, {"bytes_per_printer": per_printer, "rss_one": rss_one,
+                                        f"rss_{count}": rss_many}),
+    ]
+
+
+def _start_farm(bench: Bench, target: Target, count: int):
+    proc = bench.procs.start("farm", target.argv)
+    try:
+        return proc, proc.read_lines(count, FARM_START_TIMEOUT)
+    except BaseException:
+        bench.procs.stop(proc)
+        raise
+
+
+def _farm_streaming(bench: Bench, section: Section, count: int, moves: int) -> None:
+    job = jobs.short_moves(moves)
+    path = write_job(bench.workdir, f"farm-{moves}", job)
+    host = our_host("marlin")
+    alone = _stream_farm(bench, 1, "alone", host, job, path)
+    together = _stream_farm(bench, count, "together", host, job, path)
+    reference = alone[0][0].rate if alone[0] else None
+    rates = [run.rate for run in together[0]]
+    known = [value for value in rates if value is not None]
+    # The slowest of all: a printer whose run did not complete has no rate, and then no minimum.
+    slowest = min(known) if known and len(known) == len(rates) == count else None
+    complete = sum(run.complete for run in together[0])
+    verdicts = together[1]
+    once = sum(ok for ok, _ in verdicts)
+    section.rows += [
+        Row(f"{count} printers streaming: the slowest", rate(slowest) if slowest else
+            f"{complete} of {count} runs complete", f"{rate(reference)} (1 printer alone)",
+            _ratio(slowest, reference), f"each ≥ {FARM_RATE_GOAL:.0f} cmd/s",
+            slowest is not None and slowest >= FARM_RATE_GOAL,
+            {"cmd_per_s": rates, "alone": reference, "complete": complete}),
+        Row(f"{count} printers: ran exactly once", f"{once} of {count} journals",
+            "verify against the job", None, "each exactly once",
+            once == count == len(verdicts),
+            {"journals": [why for _, why in verdicts]}),
+    ]
+    section.notes.append(f"--printers {count} --protocol marlin --speed {SPEED}; our host streams "
+                         f"to all of them at once from {_host_processes()} process(es)")
+
+
+def _host_processes() -> int:
+    """One host process per spare CPU (up to 4): more than that only take turns on a core."""
+    return max(1, min(4, (os.cpu_count() or 1) - 1))
+
+
+def _stream_farm(bench: Bench, count: int, name: str, host: Host, job: list[str],
+                 path: Path) -> tuple[list[Run], list[tuple[bool, str]]]:
+    journals = bench.workdir / f"journals-{name}"
+    journals.mkdir()
+    target = _farm(count, "--speed", SPEED, "--journal", str(journals / "printer-{n}.log"))
+    proc, ports = _start_farm(bench, target, count)
+    try:
+        groups = [ports[k::_host_processes()] for k in range(_host_processes())]
+        started = [start_host(bench.procs, host, group, path) for group in groups if group]
+        runs = [run for each in started for run in collect(bench.procs, each, host, len(job))]
+    finally:
+        bench.procs.stop(proc)
+    files = sorted(journals.glob("*"))
+    verdicts = [exactly_once(job, file) for file in files]
+    verdicts += [(False, "no journal")] * max(0, count - len(files))
+    return runs, verdicts
+
+
+SECTIONS: dict[str, Callable[[Bench], Section]] = {
+    "hosts": hosts, "cpu": cpu, "baud": baud, "latency": latency, "simhour": simhour,
+    "farm": farm,
+}
+
+
+def run_section(bench: Bench, key: str) -> Section:
+    """One section; a part that could not run is a row saying why, never a traceback."""
+    started = time.monotonic()
+    try:
+        section = SECTIONS[key](bench)
+    except Exception as error:  # noqa: BLE001 - a measurement reports, it does not crash
+        section = Section(key, key, ("figure", "measured", "reference"),
+                          [Row(key, f"could not run: {describe_error(error)}")])
+    section.seconds = time.monotonic() - started
+    return section

@@ -1,0 +1,149 @@
+"""The bare ok-responder: the least a Marlin printer on a pty can be, as the bench's reference.
+
+    python -m fake_marlin.emulator.bench.responder      # prints its /dev/pts path, then serves
+
+Every line a host sends is answered at once with `ok`, so a host's throughput against it is
+what the host and the pty alone allow, and its CPU per command what a pty program cannot go
+below. Just enough more that real hosts go online and finish a job:
+- opening the port (a FLUSHREAD notice in packet mode, as the emulator's PtyLink sees it) is a
+  reset: the line counter goes back to 0 and `start` greets the host (OctoPrint and printcore
+  wait for it or for an ok; our host waits up to half a second for a greeting before sending);
+- M105 says `ok T:20.0 /0.0 B:20.0 /0.0`, M115 a firmware name and one `Cap:` line (OctoPrint
+  waits for the end of the capability report);
+- numbered lines move the counter, M110 sets it, and a numbered line with a wrong or missing
+  checksum draws Marlin's `Error:`/`Resend:`/`ok` naming it: our Marlin host reads the
+  counter that way (its probe, `N0 M105 M110*256`, is refused by design) before it starts and
+  before it ends a job;
+- blank lines get no answer, as in Marlin: our host puts a line feed before its probe, and an
+  `ok` for it would acknowledge the wrong line.
+Nothing else: no planner, no time, no line-number policing. Plain blocking I/O without trio, so
+that the reference costs as little as it can.
+"""
+
+import errno
+import fcntl
+import os
+import re
+import select
+import signal
+import struct
+import sys
+import termios
+import tty
+
+_TIOCPKT_DATA = 0
+_TIOCPKT_FLUSHREAD = 1
+_LINE = re.compile(rb"\s*(?:[Nn](-?\d+)\s*)?(.*?)(?:\*(\d*))?\s*")
+_M110_NUMBER = re.compile(rb"[Nn](-?\d+)")
+M105_OK = b"ok T:20.0 /0.0 B:20.0 /0.0 @:0 B@:0\n"
+M115_REPLY = (
+    b"FIRMWARE_NAME:Marlin bare-ok-responder SOURCE_CODE_URL:- PROTOCOL_VERSION:1.0 "
+    b"MACHINE_TYPE:bench EXTRUDER_COUNT:1\nCap:AUTOREPORT_TEMP:0\nok\n"
+)
+
+
+class _Stop(Exception):
+    """SIGTERM, SIGHUP or Ctrl-C: leave the loop and close the pty."""
+
+
+def _stop(signum: int, frame: object) -> None:
+    raise _Stop
+
+
+class Responder:
+    """The line logic, apart from the pty so that it can be tested on bytes alone."""
+
+    def __init__(self) -> None:
+        self.last_line = 0  # Marlin's counter: the last numbered line accepted
+        self.lines = 0  # lines answered, for whoever is curious
+        self._buffer = b""
+
+    def reset(self) -> bytes:
+        self.last_line = 0
+        self._buffer = b""
+        return b"start\n"
+
+    def receive(self, data: bytes) -> bytes:
+        """What to answer to these bytes: one reply per complete line."""
+        *lines, self._buffer = (self._buffer + data).split(b"\n")
+        return b"".join(self._answer(line) for line in lines)
+
+    def _answer(self, line: bytes) -> bytes:
+        match = _LINE.fullmatch(line)
+        if match is None or not match[2] and match[1] is None:
+            return b""  # blank (or only "\r"): Marlin says nothing
+        self.lines += 1
+        number, command, checksum = match[1], match[2], match[3]
+        if number is not None:
+            body = line[: line.rindex(b"*")] if checksum is not None else b""
+            if checksum is None or not checksum or _xor(body.lstrip()) != int(checksum):
+                kind = b"No Checksum with line number" if checksum is None else b"checksum mismatch"
+                return b"Error:%s, Last Line: %d\nResend: %d\nok\n" % (
+                    kind, self.last_line, self.last_line + 1)
+            self.last_line = int(number)
+        word = command.split(None, 1)[0].upper() if command.strip() else b""
+        if word == b"M110":
+            given = _M110_NUMBER.search(command[4:])
+            if given:
+                self.last_line = int(given[1])
+        elif word == b"M105":
+            return M105_OK
+        elif word == b"M115":
+            return M115_REPLY
+        return b"ok\n"
+
+
+def _xor(data: bytes) -> int:
+    value = 0
+    for byte in data:
+        value ^= byte
+    return value
+
+
+def serve(master: int, responder: Responder) -> None:
+    while True:
+        select.select([master], [], [])
+        try:
+            packet = os.read(master, 65536)
+        except BlockingIOError:
+            continue
+        if not packet:
+            continue
+        if packet[0] == _TIOCPKT_DATA:
+            reply = responder.receive(packet[1:])
+        elif packet[0] & _TIOCPKT_FLUSHREAD:
+            reply = responder.reset()
+        else:
+            continue
+        if reply:
+            try:
+                os.write(master, reply)
+            except OSError as error:
+                # Nobody reads the port and its buffer is full: the bytes are lost, as on a wire
+                # nobody listens to (a host never streams without reading).
+                if error.errno not in (errno.EAGAIN, errno.EIO):
+                    raise
+
+
+def main() -> int:
+    for signum in (signal.SIGTERM, signal.SIGHUP, signal.SIGINT):
+        signal.signal(signum, _stop)
+    master, slave = os.openpty()
+    try:
+        tty.setraw(slave)  # bytes pass as they are, as on a USB serial adapter
+        # Packet mode tells us when a host opens the port (it flushes its input); keeping our own
+        # slave fd open keeps the master readable while no host has the port open.
+        fcntl.ioctl(master, termios.TIOCPKT, struct.pack("i", 1))
+        os.set_blocking(master, False)
+        print(os.ttyname(slave), flush=True)
+        serve(master, Responder())
+    except (_Stop, KeyboardInterrupt):
+        pass
+    finally:
+        os.close(master)
+        os.close(slave)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
