@@ -17,6 +17,13 @@ from fake_marlin.emulator.faults.layer import FaultConfig, parse_fault
 from fake_marlin.emulator.journal.writer import Journal
 from fake_marlin.emulator.link.pty import PtyLink
 from fake_marlin.emulator.printer.model import DEFAULT_CAPABILITIES, Printer, PrinterConfig
+from fake_marlin.emulator.cli.farm import (
+    MAX_PRINTERS,
+    PrinterPlan,
+    check_patterns,
+    copies,
+    load_farm,
+)
 from fake_marlin.emulator.scenario.definition import PrinterSetup, ScenarioError, add_fault_table
 from fake_marlin.emulator.scenario.definition import load as load_scenario
 from fake_marlin.emulator.server.clock import ScaledClock
@@ -64,6 +71,12 @@ def _extruder_count(text: str) -> int:
     return int(text)
 
 
+def _printer_count(text: str) -> int:
+    if not text.isdigit() or not 1 <= int(text) <= MAX_PRINTERS:
+        raise argparse.ArgumentTypeError(f"must be a whole number from 1 to {MAX_PRINTERS}, got {text!r}")
+    return int(text)
+
+
 def _json_table(text: str) -> dict[str, object]:
     try:
         table = json.loads(text)
@@ -86,8 +99,20 @@ def build_parser() -> argparse.ArgumentParser:
         "--protocol", choices=PROTOCOLS, default="auto",
         help="wire protocol; auto (default) decides from each connection's first bytes",
     )
-    parser.add_argument("--link", metavar="PATH", help="also make PATH a symlink to the pty")
-    parser.add_argument("--journal", metavar="FILE", help="append each executed command to FILE")
+    parser.add_argument("--link", metavar="PATH", help="also make PATH a symlink to the pty "
+                        "(with --printers, a pattern with {n}: /tmp/printer-{n})")
+    parser.add_argument("--journal", metavar="FILE", help="append each executed command to FILE "
+                        "(with --printers, a pattern with {n})")
+    parser.add_argument(
+        "--printers", type=_printer_count, default=1, metavar="N",
+        help="serve N independent printers from this process, one pty each; their paths are "
+        "printed one per line, in order (default 1)",
+    )
+    parser.add_argument(
+        "--farm", metavar="FILE",
+        help="serve the printers a farm file describes (TOML: [[printer]] tables with count, "
+        "protocol, scenario, faults, link, journal, tcp...; see docs/farm.md)",
+    )
     parser.add_argument(
         "--speed", type=_positive_float, default=1.0, metavar="X",
         help="run simulated printer time X times faster than real time (default 1)",
@@ -95,7 +120,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--extruders", type=_extruder_count, default=1, metavar="N")
     parser.add_argument(
         "--sd-dir", metavar="DIR",
-        help="directory that backs the SD card (default: a temporary one, removed at exit)",
+        help="directory that backs the SD card (default: a temporary one, removed at exit; "
+        "with --printers, a pattern with {n}, made if missing)",
     )
     parser.add_argument(
         "--advanced-ok", action="store_true", help="Marlin's ADVANCED_OK: `ok N.. P.. B..`"
@@ -163,13 +189,17 @@ class _Symlink:
         self.target = target
 
 
-async def _serve_until_signalled(server: PrinterServer, path: str, control: str | None) -> None:
+async def _serve_until_signalled(printers: list["_Running"], control: str | None) -> None:
     with trio.open_signal_receiver(signal.SIGINT, signal.SIGTERM, signal.SIGHUP) as signals:
         async with trio.open_nursery() as nursery:
-            await nursery.start(server.run)
+            for printer in printers:
+                await nursery.start(printer.server.run)
             if control:
-                await nursery.start(serve_control, control, Controller(server))
-            print(path, flush=True)
+                controller = Controller([printer.server for printer in printers])
+                await nursery.start(serve_control, control, controller)
+            # Every printer is up before any path is printed: a farm's host may open them all
+            # as soon as it reads the list.
+            print("\n".join(printer.link.path for printer in printers), flush=True)
             async for _ in signals:
                 nursery.cancel_scope.cancel()
                 break
@@ -179,16 +209,19 @@ def _interrupt(signum, frame):
     raise KeyboardInterrupt
 
 
-def main(argv: list[str] | None = None) -> int:
-    argv = sys.argv[1:] if argv is None else argv
-    if argv[:1] == ["verify"]:
-        from fake_marlin.emulator.cli.verify import main as verify_main
-        return verify_main(argv[1:])
-    if argv[:1] == ["scenario"]:
-        from fake_marlin.emulator.cli.scenario import main as scenario_main
-        return scenario_main(argv[1:])
-    parser = build_parser()
-    args = parser.parse_args(argv)
+def _plans(parser: argparse.ArgumentParser, args: argparse.Namespace) -> list[PrinterPlan]:
+    """What to serve: the farm file's printers, or --printers copies of the one the flags say."""
+    if args.farm:
+        given = [flag for flag, value in (
+            ("--printers", args.printers != 1), ("--scenario", args.scenario),
+            ("--link", args.link), ("--journal", args.journal), ("--sd-dir", args.sd_dir),
+        ) if value]
+        if given:
+            parser.error(f"argument --farm: {given[0]} goes in the farm file's [[printer]] tables")
+        try:
+            return load_farm(args.farm)
+        except ScenarioError as error:
+            parser.error(f"argument --farm: {error}")
     setup = PrinterSetup(
         protocol=args.protocol, extruders=args.extruders, boot_delay=args.boot_delay,
         advanced_ok=args.advanced_ok, latency=args.latency_ms / 1000, jitter=args.jitter_ms / 1000,
@@ -211,53 +244,92 @@ def main(argv: list[str] | None = None) -> int:
             faults = add_fault_table(faults, table, f"--fault-table #{number}")
         except ScenarioError as error:
             parser.error(f"argument {error}")
-    if args.sd_dir and not os.path.isdir(args.sd_dir):
+    if args.printers > 1:
+        for flag, value in (("--link", args.link), ("--journal", args.journal),
+                            ("--sd-dir", args.sd_dir)):
+            if value and "{n}" not in value:
+                parser.error(f"argument {flag}: with --printers, put {{n}} in it (the printer's "
+                             f"number, from 1), e.g. {flag} /tmp/printer-{{n}}")
+    elif args.sd_dir and "{n}" not in args.sd_dir and not os.path.isdir(args.sd_dir):
         parser.error(f"argument --sd-dir: no directory {args.sd_dir}")
+    base = PrinterPlan(1, setup, faults, args.link, args.journal, args.sd_dir)
+    return copies(base, args.printers)
+
+
+class _Running:
+    """One printer of this process and what it holds open: its link, symlink, journal, card."""
+
+    def __init__(self, plan: PrinterPlan, capabilities: dict[str, bool], speed_note: bool,
+                 cleanup: contextlib.ExitStack) -> None:
+        self.plan = plan
+        self.journal = Journal.open(plan.journal)
+        cleanup.callback(self.journal.close)
+        self.link = PtyLink()
+        cleanup.callback(self.link.close)
+        self.symlink = _Symlink(plan.link, self.link.path)
+        self.symlink.create()
+        cleanup.callback(self.symlink.remove)
+
+        def new_path(path: str) -> None:
+            self.symlink.retarget(path)
+            # The line came back on a new pty: say where, as at start (which printer, in a farm).
+            print(path if not speed_note else f"printer {plan.number}: {path}", flush=True)
+
+        self.link.on_new_path = new_path
+        if plan.sd_dir:
+            os.makedirs(plan.sd_dir, exist_ok=True)
+            sd_dir = Path(plan.sd_dir)
+        else:
+            sd_dir = Path(cleanup.enter_context(tempfile.TemporaryDirectory(prefix="fake-marlin-sd-")))
+        config = PrinterConfig(
+            extruders=plan.setup.extruders, sd_dir=sd_dir, capabilities=tuple(capabilities.items())
+        )
+        self.server = PrinterServer(
+            self.link, Printer(config), self.journal, plan.setup.server_config(plan.faults)
+        )
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else argv
+    if argv[:1] == ["verify"]:
+        from fake_marlin.emulator.cli.verify import main as verify_main
+        return verify_main(argv[1:])
+    if argv[:1] == ["scenario"]:
+        from fake_marlin.emulator.cli.scenario import main as scenario_main
+        return scenario_main(argv[1:])
+    if argv[:1] == ["bench"]:
+        from fake_marlin.emulator.bench.cli import main as bench_main
+        return bench_main(argv[1:])
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    plans = _plans(parser, args)
+    try:
+        check_patterns(plans)
+    except ScenarioError as error:
+        parser.error(str(error))
     if args.control and (problem := check_control_path(args.control)):
         parser.error(f"argument --control: {problem}")
     # Until trio takes over the signals (and in case one lands before it does), a SIGTERM or
-    # SIGHUP must unwind like Ctrl-C so that the symlink is removed.
+    # SIGHUP must unwind like Ctrl-C so that the symlinks are removed.
     signal.signal(signal.SIGTERM, _interrupt)
     signal.signal(signal.SIGHUP, _interrupt)
-    try:
-        journal = Journal.open(args.journal)
-    except OSError as error:
-        print(f"fake-marlin: cannot open journal {args.journal}: {error.strerror}", file=sys.stderr)
-        return 2
-    link = PtyLink()
-    symlink = _Symlink(args.link, link.path)
-
-    def new_path(path: str) -> None:
-        symlink.retarget(path)
-        print(path, flush=True)  # the line came back on a new pty: say where, as at start
-
-    link.on_new_path = new_path
-    try:
-        symlink.create()
-    except OSError as error:
-        print(f"fake-marlin: cannot create link {args.link}: {error.strerror or error}", file=sys.stderr)
-        link.close()
-        return 2
-    try:
-        with contextlib.ExitStack() as cleanup:
-            sd_dir = Path(args.sd_dir) if args.sd_dir else Path(
-                cleanup.enter_context(tempfile.TemporaryDirectory(prefix="fake-marlin-sd-"))
-            )
-            capabilities = dict(DEFAULT_CAPABILITIES)
-            capabilities.update(args.capability)
-            config = PrinterConfig(
-                extruders=setup.extruders, sd_dir=sd_dir, capabilities=tuple(capabilities.items())
-            )
-            server = PrinterServer(link, Printer(config), journal, setup.server_config(faults))
-            trio.run(
-                _serve_until_signalled, server, link.path, args.control, clock=ScaledClock(args.speed)
-            )
-    except KeyboardInterrupt:
-        pass
-    finally:
-        symlink.remove()
-        journal.close()
-        link.close()
+    capabilities = dict(DEFAULT_CAPABILITIES)
+    capabilities.update(args.capability)
+    with contextlib.ExitStack() as cleanup:
+        printers = []
+        for plan in plans:
+            try:
+                printers.append(_Running(plan, capabilities, len(plans) > 1, cleanup))
+            except OSError as error:
+                what = (f"journal {error.filename}" if error.filename == plan.journal
+                        else f"link {plan.link}" if plan.link else "a pty")
+                print(f"fake-marlin: cannot create {what}: {error.strerror or error}",
+                      file=sys.stderr)
+                return 2
+        try:
+            trio.run(_serve_until_signalled, printers, args.control, clock=ScaledClock(args.speed))
+        except KeyboardInterrupt:
+            pass
     return 0
 
 

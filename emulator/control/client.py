@@ -16,13 +16,17 @@ class ControlRequestError(Exception):
 
 
 class ControlClient:
-    def __init__(self, path: str, timeout: float = 10.0) -> None:
+    def __init__(self, path: str, timeout: float = 10.0, printer: int | None = None) -> None:
+        """`printer`: which of a farm's printers the requests are for (from 1)."""
+        self.printer = printer
         self._socket = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
         self._socket.settimeout(timeout)
         self._socket.connect(path)
         self._reader = self._socket.makefile("rb")
 
     def request(self, op: str, **fields) -> object:
+        if self.printer is not None:
+            fields = {"printer": self.printer, **fields}
         self._socket.sendall(json.dumps({"op": op, **fields}).encode() + b"\n")
         line = self._reader.readline()
         if not line:
@@ -50,6 +54,13 @@ class ControlClient:
 
     def say(self, text: str) -> None:
         self.request("say", text=text)
+
+    def printers(self) -> list[dict]:
+        """Every printer the process serves: its number, path, protocol and boots."""
+        found = self.request("printers")
+        if not isinstance(found, list):
+            raise ControlRequestError(f"the printer list is not a list: {found!r}")
+        return found
 
     def close(self) -> None:
         self._reader.close()

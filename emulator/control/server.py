@@ -8,6 +8,9 @@ Each request is one JSON object on a line, each reply one line:
     {"op": "inject", "fault": {"kind": "thermal-runaway"}}   (a [[fault]] table of a scenario;
         without a trigger, a printer fault fires now and a link fault hits the next unit)
     {"op": "say", "text": "//action:pause"}           (the printer prints this line)
+    {"op": "printers"}                                -> [{"printer": 1, "path": ...}, ...]
+In a process serving several printers (--printers, --farm) a request names its printer by
+number, from 1: {"op": "state", "printer": 3}; with one printer the number may be left out.
 A request the channel cannot carry out gets {"ok": false, "error": "..."}; the connection stays.
 """
 
@@ -29,19 +32,41 @@ class ControlError(Exception):
 
 
 class Controller:
-    """What the channel can do to a running PrinterServer."""
+    """What the channel can do to the running PrinterServers (one, or a farm's)."""
 
-    def __init__(self, server) -> None:
-        self.server = server
+    def __init__(self, servers) -> None:
+        self.servers = list(servers) if isinstance(servers, (list, tuple)) else [servers]
 
     def handle(self, request) -> object:
         if not isinstance(request, dict) or not isinstance(request.get("op"), str):
             raise ControlError('a request is a JSON object with an "op"')
+        if request["op"] == "printers":
+            return self.op_printers()
         handler = getattr(self, "op_" + request["op"], None)
         if handler is None:
             raise ControlError(f"unknown op {request['op']!r}; one of state, set_temperature, "
-                               "set_target, inject, say")
+                               "set_target, inject, say, printers")
+        self.server = self._addressed(request)
         return handler(request)
+
+    def _addressed(self, request):
+        number = request.get("printer")
+        count = len(self.servers)
+        if number is None:
+            if count == 1:
+                return self.servers[0]
+            raise ControlError(f'this process serves {count} printers: say which, '
+                               f'"printer": 1 to {count}')
+        if isinstance(number, bool) or not isinstance(number, int) or not 1 <= number <= count:
+            raise ControlError(f'"printer" must be a number from 1 to {count}, not {number!r}')
+        return self.servers[number - 1]
+
+    def op_printers(self) -> list:
+        return [
+            {"printer": number, "path": getattr(server.link, "path", None),
+             "protocol": server.protocol_name, "boots": server.boots}
+            for number, server in enumerate(self.servers, start=1)
+        ]
 
     def op_state(self, request) -> dict:
         server, printer = self.server, self.server.printer

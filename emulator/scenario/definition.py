@@ -153,6 +153,14 @@ def load(path: str | Path) -> Scenario:
     return Scenario(path, name, description, printer, faults, job, job_file, host, expect)
 
 
+TableReader = _Reader  # for other files built of the same tables (the farm file)
+
+
+def read_printer_table(path: Path | str, where: str, table: dict) -> PrinterSetup:
+    """A `[printer]` table's settings, from wherever such a table is given."""
+    return _printer(_Reader(path, where, table))
+
+
 def _printer(table: _Reader) -> PrinterSetup:
     baud = table.get("baud", (int, str), None)
     if isinstance(baud, str) and baud != "host":

@@ -1,0 +1,204 @@
+"""Many printers in one process: what each one is, from the command line or a farm file.
+
+A farm file is TOML: one `[[printer]]` table per kind of printer, with the keys of a
+scenario's `[printer]` table plus these:
+
+    count = 10                    # this many printers alike (default 1)
+    scenario = "noisy.toml"       # printer settings and faults from a scenario (its job unused)
+    seed = 3                      # for its random faults; printer k of a count gets seed + k
+    link = "/tmp/printer-{n}"     # a symlink to its pty; {n} is the printer's number, from 1
+    journal = "logs/{n}.log"      # append each executed command here
+    sd_dir = "sd/{n}"             # the directory behind its SD card (default: a temporary one)
+    tcp = "127.0.0.1:9000"        # serve on TCP instead of a pty; a count takes consecutive ports
+    rfc2217 = 9100                # or on RFC 2217
+    [[printer.fault]]             # as a scenario's [[fault]] tables
+    kind = "bit-errors"
+    ...
+
+Every mistake is reported with the file, the printer table and the key, as scenario errors are.
+"""
+
+import dataclasses
+import tomllib
+from dataclasses import dataclass
+from pathlib import Path
+
+from fake_marlin.emulator.faults.layer import FaultConfig
+from fake_marlin.emulator.scenario.definition import (
+    PrinterSetup,
+    ScenarioError,
+    TableReader,
+    add_fault_table,
+    load,
+    read_printer_table,
+)
+
+MAX_PRINTERS = 10_000  # more than one process can serve; a typo, not a farm
+_FARM_KEYS = ("count", "scenario", "seed", "link", "journal", "sd_dir", "tcp", "rfc2217", "fault")
+
+
+class FarmError(ScenarioError):
+    """A farm file or --printers setting that cannot be used; the message says where and why."""
+
+
+@dataclass(frozen=True)
+class Address:
+    host: str
+    port: int
+
+    def plus(self, offset: int) -> "Address":
+        return Address(self.host, self.port + offset if self.port else 0)
+
+
+@dataclass(frozen=True)
+class PrinterPlan:
+    """One printer to serve: its settings, faults, and where its outputs go."""
+
+    number: int  # from 1, in the order the paths are printed
+    setup: PrinterSetup
+    faults: FaultConfig
+    link: str | None = None
+    journal: str | None = None
+    sd_dir: str | None = None
+    tcp: Address | None = None
+    rfc2217: Address | None = None
+
+
+def numbered(pattern: str | None, number: int) -> str | None:
+    return None if pattern is None else pattern.replace("{n}", str(number))
+
+
+def parse_address(text: str | int) -> Address:
+    """`[HOST:]PORT` (an int is a port); ValueError with the reason."""
+    if isinstance(text, int) and not isinstance(text, bool):
+        host, port_text = "127.0.0.1", str(text)
+    elif isinstance(text, str):
+        host, _, port_text = text.rpartition(":")
+        host = host.strip("[]") or "127.0.0.1"
+    else:
+        raise ValueError(f"expected [HOST:]PORT, got {text!r}")
+    if not port_text.isdigit() or not 0 <= int(port_text) <= 65535:
+        raise ValueError(f"expected [HOST:]PORT with a port from 0 to 65535, got {text!r}")
+    return Address(host, int(port_text))
+
+
+def copies(plan: PrinterPlan, count: int, first: int = 1) -> list[PrinterPlan]:
+    """`count` printers like `plan`, numbered from `first`: each its own {n} paths, the next
+    port, and the next seed (so that their random faults differ)."""
+    out = []
+    for k in range(count):
+        number = first + k
+        faults = dataclasses.replace(plan.faults, seed=plan.faults.seed + k)
+        out.append(dataclasses.replace(
+            plan, number=number, faults=faults,
+            link=numbered(plan.link, number), journal=numbered(plan.journal, number),
+            sd_dir=numbered(plan.sd_dir, number),
+            tcp=plan.tcp.plus(k) if plan.tcp else None,
+            rfc2217=plan.rfc2217.plus(k) if plan.rfc2217 else None,
+        ))
+    return out
+
+
+def check_patterns(plans: list[PrinterPlan]) -> None:
+    """Two printers may not share a link, journal, SD directory or port."""
+    for key in ("link", "journal", "sd_dir"):
+        seen: dict[str, int] = {}
+        for plan in plans:
+            value = getattr(plan, key)
+            if value is None:
+                continue
+            if value in seen:
+                raise FarmError(
+                    f"printers {seen[value]} and {plan.number} would share the {key} {value}; "
+                    "put {n} in it"
+                )
+            seen[value] = plan.number
+    ports: dict[tuple[str, int], int] = {}
+    for plan in plans:
+        for address in (plan.tcp, plan.rfc2217):
+            if address is None or address.port == 0:
+                continue
+            where = (address.host, address.port)
+            if where in ports:
+                raise FarmError(
+                    f"printers {ports[where]} and {plan.number} would share port {address.port}"
+                )
+            ports[where] = plan.number
+
+
+def load_farm(path: str | Path) -> list[PrinterPlan]:
+    path = Path(path)
+    try:
+        data = tomllib.loads(path.read_text(encoding="utf-8"))
+    except OSError as error:
+        raise FarmError(f"{path}: cannot read: {error.strerror}") from None
+    except UnicodeDecodeError:
+        raise FarmError(f"{path}: not UTF-8 text") from None
+    except tomllib.TOMLDecodeError as error:
+        raise FarmError(f"{path}: not valid TOML: {error}") from None
+    top = TableReader(path, "", data)
+    entries = top.get("printer", list, [])
+    top.finish()
+    if not entries:
+        raise FarmError(f"{path}: no [[printer]] tables: a farm needs at least one printer")
+    plans: list[PrinterPlan] = []
+    for index, entry in enumerate(entries, start=1):
+        where = f"[[printer]] #{index} "
+        if not isinstance(entry, dict):
+            raise FarmError(f"{path}: {where}must be a table")
+        plans += _entry(path, where, entry, first=len(plans) + 1)
+        if len(plans) > MAX_PRINTERS:
+            raise FarmError(f"{path}: more than {MAX_PRINTERS} printers")
+    try:
+        check_patterns(plans)
+    except FarmError as error:
+        raise FarmError(f"{path}: {error}") from None
+    return plans
+
+
+def _entry(path: Path, where: str, entry: dict, first: int) -> list[PrinterPlan]:
+    own = TableReader(path, where, {key: entry[key] for key in _FARM_KEYS if key in entry})
+    count = own.get("count", int, 1, minimum=1, maximum=MAX_PRINTERS)
+    scenario_file = own.get("scenario", str, None)
+    printer_keys = {key: value for key, value in entry.items() if key not in _FARM_KEYS}
+    if scenario_file is not None:
+        if printer_keys:
+            own.fail(sorted(printer_keys)[0], "comes from the scenario; give one or the other")
+        try:
+            scenario = load(path.parent / scenario_file)
+        except ScenarioError as error:
+            own.fail("scenario", str(error))
+        setup, faults = scenario.printer, scenario.faults
+    else:
+        setup = read_printer_table(path, where, printer_keys)
+        faults = FaultConfig()
+    seed = own.get("seed", int, None)
+    if seed is not None:
+        faults = dataclasses.replace(faults, seed=seed)
+    for number, table in enumerate(own.get("fault", list, []), start=1):
+        faults = add_fault_table(faults, table, f"{path}: {where}[[printer.fault]] #{number}")
+    addresses = {}
+    for key in ("tcp", "rfc2217"):
+        value = own.get(key, (str, int), None)
+        if value is not None:
+            try:
+                addresses[key] = parse_address(value)
+            except ValueError as error:
+                own.fail(key, str(error))
+    if len(addresses) > 1:
+        own.fail("rfc2217", "a printer is served on TCP or on RFC 2217, not both")
+    plan = PrinterPlan(
+        number=first, setup=setup, faults=faults,
+        link=_beside(path, own.get("link", str, None)),
+        journal=_beside(path, own.get("journal", str, None)),
+        sd_dir=_beside(path, own.get("sd_dir", str, None)), **addresses,
+    )
+    own.finish()
+    if plan.link is not None and (plan.tcp or plan.rfc2217):
+        own.fail("link", "is the pty's symlink; a printer on TCP has no pty")
+    return copies(plan, count, first)
+
+
+def _beside(farm: Path, value: str | None) -> str | None:
+    """A relative path in a farm file is relative to the file, as a scenario's job file is."""
+    return None if value is None else str(farm.parent / value)
