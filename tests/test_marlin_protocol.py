@@ -190,3 +190,22 @@ def test_arbitrary_bytes_never_crash_and_every_reply_is_ascii(chunks):
         for event in feed(protocol, chunk):
             assert isinstance(event, (LineReceived, LineRejected, EmergencyCommand))
     protocol.data_to_send().decode("ascii")
+
+
+class CharByChar(MarlinProtocol):
+    """The receiver as the firmware runs it: process_stream_char() for every byte."""
+
+    def _stream_chars(self, data, start, stop):
+        for position in range(start, stop):
+            self._stream_char(data[position])
+
+
+@settings(max_examples=300)
+@given(st.lists(st.binary(max_size=120) | st.sampled_from(
+    [b"N1 G1 X1*", b";", b"(", b")", b"\\", b"\x08", b"\n", b"\r", b"M112\n", b"x" * 100]
+), max_size=30))
+def test_reading_a_stretch_at_once_is_reading_it_char_by_char(chunks):
+    fast, slow = MarlinProtocol(), CharByChar()
+    for chunk in chunks:
+        assert feed(fast, chunk) == feed(slow, chunk)
+    assert fast.data_to_send() == slow.data_to_send()

@@ -67,6 +67,8 @@ class Output:
 
 
 _LEADING_INT = re.compile(r"\s*([-+]?\d+)")
+_LINE_END = re.compile(rb"[\r\n]")
+_SPECIAL = re.compile(rb"[;\\(\x08]")  # what process_stream_char() treats other than text
 _EMERGENCY = re.compile(r"(?:N-?\d+\s*)?(M(?:108|112|410)(?!\d)|M876\s*S\d+)")
 
 
@@ -111,15 +113,22 @@ class MarlinProtocol:
         self._scan_for_emergencies(data)
 
     def _scan_for_emergencies(self, data: bytes) -> None:
-        for byte in data:
-            if byte in b"\r\n":
-                line = self._emergency_line.decode("ascii", "replace").strip()
-                match = _EMERGENCY.match(line)
-                if match:
-                    self._emergencies.append(EmergencyCommand(re.sub(r"\s+", " ", match[1])))
-                self._emergency_line.clear()
-            elif len(self._emergency_line) < MAX_CMD_SIZE:
-                self._emergency_line.append(byte)
+        """The emergency parser sees every byte as it arrives, whole lines of them at a time."""
+        start = 0
+        for end in _LINE_END.finditer(data):
+            self._emergency_take(data[start:end.start()])
+            line = self._emergency_line.decode("ascii", "replace").strip()
+            match = _EMERGENCY.match(line)
+            if match:
+                self._emergencies.append(EmergencyCommand(re.sub(r"\s+", " ", match[1])))
+            self._emergency_line.clear()
+            start = end.end()
+        self._emergency_take(data[start:])
+
+    def _emergency_take(self, chunk: bytes) -> None:
+        room = MAX_CMD_SIZE - len(self._emergency_line)
+        if room > 0:
+            self._emergency_line += chunk[:room]
 
     @property
     def queue_free(self) -> int:
@@ -128,22 +137,42 @@ class MarlinProtocol:
     def next_event(self) -> Event | None:
         if self._emergencies:
             return self._emergencies.pop(0)
+        data = self._input
         position = 0
         try:
-            while position < len(self._input) and self._queued < self.queue_size:
-                byte = self._input[position]
-                position += 1
-                if byte in b"\r\n":
-                    event = self._line_done()
-                    if isinstance(event, LineRejected):
-                        position = len(self._input)  # the firmware reads its RX buffer empty
-                    if event is not None:
-                        return event
-                else:
-                    self._stream_char(byte)
+            while position < len(data) and self._queued < self.queue_size:
+                end = _LINE_END.search(data, position)
+                stop = len(data) if end is None else end.start()
+                self._stream_chars(data, position, stop)
+                if end is None:
+                    position = stop
+                    return None
+                position = stop + 1
+                event = self._line_done()
+                if isinstance(event, LineRejected):
+                    position = len(data)  # the firmware reads its RX buffer empty
+                if event is not None:
+                    return event
             return None
         finally:
-            del self._input[:position]
+            del data[:position]
+
+    def _stream_chars(self, data: bytearray, start: int, stop: int) -> None:
+        """process_stream_char() over data[start:stop], a stretch without line ends: plain text
+        in one piece, and character by character only where a comment, an escape or a
+        backspace needs it."""
+        if start == stop or self._state is InputState.EOL_COMMENT:
+            return
+        if self._state is InputState.NORMAL and not self._escaped and (
+            _SPECIAL.search(data, start, stop) is None
+        ):
+            room = MAX_CMD_SIZE - 1 - len(self._line)
+            self._line += data[start:min(stop, start + room)]
+            if stop - start >= room:
+                self._state = InputState.EOL_COMMENT  # the buffer is full: the rest is lost
+            return
+        for position in range(start, stop):
+            self._stream_char(data[position])
 
     def _stream_char(self, byte: int) -> None:
         """process_stream_char(): `;` comments and escapes, as the firmware strips them.
