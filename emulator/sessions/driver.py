@@ -10,34 +10,78 @@ from fake_marlin.emulator.printer.model import Printer, Reply, Report, Sleep
 from fake_marlin.wire.gcode import strip_comment
 
 
-async def run_command(
-    printer: Printer, line: str, journal: Journal, on_report: Callable[[str], None]
-) -> Reply:
-    """Execute one command to completion, sleeping whenever the model waits for time.
+class CommandRun:
+    """One command on its way through the printer model, run for as long as it needs no time:
+    `advance()` runs it until it must wait (it returns until when) or it is done (None). A
+    session runs most commands (a move the planner has room for, M105) straight through,
+    inside the read that brought them, and only the ones that wait in a task of their own.
 
     It goes into the journal once it has completed. A kill (M112 through the emergency parser,
     a thermal fault) can only land while the command waits, and then it never completes.
     """
-    halted_before = printer.halted
-    steps = printer.execute(line, trio.current_time())
-    try:
-        step = next(steps)
-        while True:
-            if isinstance(step, Sleep):
-                await trio.sleep_until(step.until)
-                if printer.halted and not halted_before:
-                    steps.close()
-                    return Reply()
-            elif isinstance(step, Report):
-                on_report(step.text)
-            step = steps.send(trio.current_time())
-    except StopIteration as finished:
-        reply = finished.value
-    executed = strip_comment(line)
-    killed_while_running = printer.halted and not halted_before
-    if executed and (not killed_while_running or parse(executed).code == "M112"):
-        journal.record(executed)
-    return reply
+
+    def __init__(
+        self, printer: Printer, line: str, journal: Journal, on_report: Callable[[str], None]
+    ) -> None:
+        self.printer = printer
+        self.line = line
+        self.journal = journal
+        self.on_report = on_report
+        self.reply = Reply()
+        self._halted_before = printer.halted
+        self._steps = printer.execute(line, trio.current_time())
+        self._started = False
+
+    def advance(self) -> float | None:
+        """Run on until the model waits (return when it may go on) or the command is done."""
+        try:
+            step = next(self._steps) if not self._started else self._steps.send(
+                trio.current_time()
+            )
+            self._started = True
+            while True:
+                if isinstance(step, Sleep):
+                    return step.until
+                if isinstance(step, Report):
+                    self.on_report(step.text)
+                step = self._steps.send(trio.current_time())
+        except StopIteration as finished:
+            self.reply = finished.value
+        self._record()
+        return None
+
+    @property
+    def killed(self) -> bool:
+        """Halted while it waited: it never completes (and never reaches the journal)."""
+        return self.printer.halted and not self._halted_before
+
+    def abandon(self) -> None:
+        self._steps.close()
+        self.reply = Reply()
+
+    def _record(self) -> None:
+        executed = strip_comment(self.line)
+        if executed and (not self.killed or parse(executed).code == "M112"):
+            self.journal.record(executed)
+
+
+async def finish(run: CommandRun, until: float | None) -> Reply:
+    """Carry a command that waits to its end in trio time (`until`: what advance() said)."""
+    while until is not None:
+        await trio.sleep_until(until)
+        if run.killed:
+            run.abandon()
+            return run.reply
+        until = run.advance()
+    return run.reply
+
+
+async def run_command(
+    printer: Printer, line: str, journal: Journal, on_report: Callable[[str], None]
+) -> Reply:
+    """Execute one command to completion, sleeping whenever the model waits for time."""
+    run = CommandRun(printer, line, journal, on_report)
+    return await finish(run, run.advance())
 
 
 def hold_queue_full(protocol, seconds: float, nursery: trio.Nursery, resume=lambda: None) -> None:

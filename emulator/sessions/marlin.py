@@ -2,6 +2,7 @@
 
 import math
 import re
+from collections import deque
 from collections.abc import Callable, Iterable
 
 import trio
@@ -16,7 +17,7 @@ from fake_marlin.emulator.protocols.marlin import (
     Ok,
     Output,
 )
-from fake_marlin.emulator.sessions.driver import hold_queue_full, run_command
+from fake_marlin.emulator.sessions.driver import CommandRun, finish, hold_queue_full
 
 BUSY_INTERVAL = 2.0  # HOST_KEEPALIVE default; M113 changes it
 
@@ -53,7 +54,11 @@ class MarlinSession:
         self.reset_reason = reset_reason
         self._before_command = before_command
         self.protocol = MarlinProtocol(advanced_ok)
-        self._queue_in, self._queue_out = trio.open_memory_channel[LineReceived](math.inf)
+        self._backlog: deque[LineReceived] = deque()  # received while a command waits
+        self._waiting: tuple[LineReceived, CommandRun, float] | None = None
+        self._executor_idle = False  # until the executor task runs
+        self._work = trio.Event()
+        self._reports: tuple[object, ...] = ()
         self.busy_interval = BUSY_INTERVAL
         self._busy = False
         self._busy_changed = trio.Event()
@@ -81,17 +86,22 @@ class MarlinSession:
         self.protocol.receive_data(data)
         while (event := self.protocol.next_event()) is not None:
             if isinstance(event, LineReceived):
-                self._queue_in.send_nowait(event)
+                if self._executor_idle and not self._backlog:
+                    self._run_here(event)  # the common case: no task hop on the way to `ok`
+                else:
+                    self._backlog.append(event)
+                    self._work.set()
             elif isinstance(event, EmergencyCommand):
                 self.announce(self.printer.emergency(event.text, trio.current_time()))
                 if self.printer.halted:
+                    self._wake()
                     break
         self._send(self.protocol.data_to_send())
-        self._wake()
 
     def _wake(self) -> None:
         self._busy_changed.set()
         self._reports_changed.set()
+        self._work.set()
 
     async def run(self) -> None:
         async with trio.open_nursery() as nursery:
@@ -100,18 +110,26 @@ class MarlinSession:
             nursery.start_soon(self._send_auto_reports)
 
     # -- executing ---------------------------------------------------------------------
+    # A command runs where it arrives (in feed) until it has to wait for time; then this task
+    # carries it on, and the commands behind it wait in the backlog, in order.
     async def _execute_commands(self) -> None:
         sd = self.printer.sd
         while not self.printer.halted:
-            if sd.printing:
-                try:
-                    received = self._queue_out.receive_nowait()
-                except trio.WouldBlock:
-                    await self._run_from_sd()
-                    continue
+            if self._waiting is not None:
+                received, run, until = self._waiting
+                self._waiting = None
+                await self._carry_on(received, run, until)
+            elif self._backlog:
+                received = self._backlog.popleft()
+                self._executor_idle = False
+                self._run_here(received)
+            elif sd.printing:
+                self._executor_idle = False
+                await self._run_from_sd()
             else:
-                received = await self._queue_out.receive()
-            await self._run_received(received)
+                self._executor_idle = True
+                work = self._work = trio.Event()
+                await work.wait()
         await trio.sleep_forever()
 
     async def _run_from_sd(self) -> None:
@@ -120,38 +138,73 @@ class MarlinSession:
             self.printer.sd.printing = False
             self._say("Done printing file")
             return
-        await self._run(line, parse(line))
+        command = parse(line)
+        run = self._start(line, command)
+        if run is not None:
+            reply = await self._finish_waiting(command, run, run.advance())
+            if self.printer.halted:
+                self.announce(reply.lines)
 
-    async def _run_received(self, received: LineReceived) -> None:
+    def _run_here(self, received: LineReceived) -> None:
+        """Run a command from the host now; if it must wait, hand it to the executor task."""
         sd = self.printer.sd
         if sd.saving is not None and not re.match(r"M29(?!\d)", received.text):
             sd.write_line(received.text)  # M28 stores lines instead of running them
             self._send(self.protocol.send(Ok(received.line_number, planner_free=self._room())))
             return
         command = parse(received.text)
-        reply = await self._run(received.text, command)
+        run = self._start(received.text, command)
+        if run is None:
+            return
+        until = run.advance()
+        if until is None:
+            self._done(received, command, run.reply)
+        else:
+            self._executor_idle = False
+            self._waiting = (received, run, until)
+            self._work.set()
+
+    async def _carry_on(self, received: LineReceived, run: CommandRun, until: float) -> None:
+        command = parse(received.text)
+        reply = await self._finish_waiting(command, run, until)
         if self.printer.halted:
+            self.announce(reply.lines)
+            return
+        self._done(received, command, reply)
+
+    def _start(self, text: str, command: Command) -> CommandRun | None:
+        self._before_command(text)
+        if self.printer.halted:
+            return None
+        self._reports = self._report_settings()
+        return CommandRun(self.printer, text, self.journal, self._say)
+
+    async def _finish_waiting(self, command: Command, run: CommandRun, until: float | None) -> Reply:
+        self._set_busy(until is not None and command.code not in SELF_REPORTING)
+        try:
+            return await finish(run, until)
+        finally:
+            self._set_busy(False)
+
+    def _done(self, received: LineReceived, command: Command, reply: Reply) -> None:
+        if self.printer.halted:
+            self.announce(reply.lines)
+            self._wake()
             return
         self._protocol_effects(command)
         self.announce(reply.lines)
         self._send(
             self.protocol.send(Ok(received.line_number, reply.ok_suffix, planner_free=self._room()))
         )
-        self.protocol.saving_to_sd = sd.saving is not None
-        self._reports_changed.set()
+        self.protocol.saving_to_sd = self.printer.sd.saving is not None
+        if self._report_settings() != self._reports:
+            self._reports_changed.set()  # M155, M154, M27 S, or SD printing started
+            self._work.set()  # M24: the executor prints from the card
 
-    async def _run(self, text: str, command: Command) -> Reply:
-        self._before_command(text)
-        if self.printer.halted:
-            return Reply()
-        self._set_busy(command.code not in SELF_REPORTING)
-        try:
-            reply = await run_command(self.printer, text, self.journal, self._say)
-        finally:
-            self._set_busy(False)
-        if self.printer.halted:
-            self.announce(reply.lines)
-        return reply
+    def _report_settings(self) -> tuple[object, ...]:
+        reports = self.printer.auto_reports
+        sd = self.printer.sd
+        return (reports.temperature, reports.position, reports.sd_status, sd.selected, sd.printing)
 
     def _protocol_effects(self, command: Command) -> None:
         """M110, M113 and M999 act on the protocol, not on the printer."""
@@ -169,8 +222,9 @@ class MarlinSession:
 
     # -- what the printer says on its own ----------------------------------------------
     def _set_busy(self, busy: bool) -> None:
-        self._busy = busy
-        self._busy_changed.set()
+        if busy != self._busy:
+            self._busy = busy
+            self._busy_changed.set()
 
     async def _keep_host_alive(self) -> None:
         """`echo:busy: processing` while a command holds the queue, as HOST_KEEPALIVE does."""
