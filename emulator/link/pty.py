@@ -88,9 +88,21 @@ class PtyLink:
                 return HostOpened()
 
     def send(self, data: bytes) -> None:
-        """Queue bytes for the host; never blocks the printer."""
+        """Write bytes for the host, or queue what the pty cannot take now; never blocks the
+        printer. Written at once when nothing waits: the common case costs no task hop."""
         if not data or not self.connected:
             return
+        if not self._pending:
+            try:
+                written = os.write(self._master, data)
+            except BlockingIOError:
+                written = 0
+            except OSError as error:
+                self._write_failed(error)
+                return
+            data = data[written:]
+            if not data:
+                return
         self._pending += data
         overflow = len(self._pending) - _MAX_PENDING_OUTPUT
         if overflow > 0:
@@ -131,16 +143,18 @@ class PtyLink:
             except (BlockingIOError, trio.ClosedResourceError):
                 continue
             except OSError as error:
-                if not self.connected:
-                    continue
-                if error.errno != errno.EIO:
-                    raise
-                print(f"fake-marlin: write to pty failed: {error}", file=sys.stderr)
-                self.discard_output()
+                if self.connected:
+                    self._write_failed(error)
                 continue
             del self._pending[:written]
             if not self._pending:
                 self._emptied.set()
+
+    def _write_failed(self, error: OSError) -> None:
+        if error.errno != errno.EIO:
+            raise error
+        print(f"fake-marlin: write to pty failed: {error}", file=sys.stderr)
+        self.discard_output()
 
     def close(self) -> None:
         for fd in (self._master, self._slave):
