@@ -123,6 +123,17 @@ class FaultLayer:
         self._partial = {direction: b"" for direction in Direction}
         self._link_rules = {d: self.plan.link_rules(d.value) for d in Direction}
         self._framers = self._framers_for(None)
+        self._update_quiet()
+
+    def _update_quiet(self) -> None:
+        # With no rule and no rate in a direction its bytes pass untouched: the server then
+        # skips the layer altogether, so that a printer without faults pays nothing for it.
+        self.quiet_to_printer = not self._link_rules[Direction.TO_PRINTER] and not (
+            self.config.to_printer.active
+        )
+        self.quiet_to_host = not self._link_rules[Direction.TO_HOST] and not (
+            self.config.to_host.active
+        )
 
     def set_protocol(self, protocol: str | None) -> None:
         """The protocol the connection speaks from now on (None or "auto": not known yet).
@@ -140,9 +151,11 @@ class FaultLayer:
     def add_rule(self, rule: FaultRule) -> None:
         self.plan.add(rule)
         self._link_rules = {d: self.plan.link_rules(d.value) for d in Direction}
+        self._update_quiet()
 
     def set_rate(self, direction: str, field_name: str, rate: float) -> None:
         self.config = with_rate(self.config, direction, field_name, rate)
+        self._update_quiet()
 
     def new_connection(self) -> None:
         """A host (re)opened the port: half-received units belong to nobody."""

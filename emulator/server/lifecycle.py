@@ -84,6 +84,8 @@ class PrinterServer:
                 # The host's open resets the board, as DTR does on a real one; what the host
                 # sends next is read by the new boot.
                 await self._restart(" External Reset")
+            elif self.faults.quiet_to_printer:
+                self._to_printer.put(item)
             else:
                 self._carry(self.faults.to_printer(item), self._to_printer)
 
@@ -140,7 +142,12 @@ class PrinterServer:
         raise ValueError(f"unknown protocol {protocol!r}")
 
     def _send(self, data: bytes) -> None:
-        self._carry(self.faults.to_host(data), self._to_host)
+        if not data:
+            return
+        if self.faults.quiet_to_host:
+            self._to_host.put(data)
+        else:
+            self._carry(self.faults.to_host(data), self._to_host)
 
     def _carry(self, segments: list[Segment], pipe: Pipe) -> None:
         for segment in segments:
