@@ -38,7 +38,9 @@ class Pipe:
 
     def put(self, data: bytes, pause: float = 0.0) -> None:
         now = trio.current_time()
-        if not self._queue and not pause and not self.conditions.active and self._free_at <= now:
+        # self.baud, not the conditions': it may be the rate the host set (baud_from_host).
+        paced = bool(self.baud) or self.conditions.latency > 0 or self.conditions.jitter > 0
+        if not self._queue and not pause and not paced and self._free_at <= now:
             self._deliver(data)
             return
         start = max(now + self.conditions.latency + self._random.uniform(0, self.conditions.jitter),
