@@ -57,11 +57,13 @@ def build_parser() -> argparse.ArgumentParser:
     )
     commands = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     print_parser = commands.add_parser("print", parents=[common], help="stream a G-code file")
-    print_parser.add_argument("port", help="serial device, e.g. /dev/ttyACM0 or the emulator's pty")
+    port_help = ("serial device (e.g. /dev/ttyACM0 or the emulator's pty), or a network port: "
+                 "socket://HOST:PORT (raw TCP) or rfc2217://HOST:PORT")
+    print_parser.add_argument("port", help=port_help)
     print_parser.add_argument("file", help="G-code file")
     print_parser.add_argument("--json", action="store_true", help="print a JSON summary instead")
     send_parser = commands.add_parser("send", parents=[common], help="send one command, print the reply")
-    send_parser.add_argument("port")
+    send_parser.add_argument("port", help=port_help)
     send_parser.add_argument("gcode", help='the command, e.g. "M105"')
     return parser
 

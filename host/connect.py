@@ -11,8 +11,8 @@ from fake_marlin.host.clients.repetier import RepetierClient
 from fake_marlin.host.clients.ultimaker import UltimakerClient
 from fake_marlin.host.errors import CommandError
 from fake_marlin.host.gcode_file import JobCommand, checked_job
-from fake_marlin.host.serial_port import SerialPort
 from fake_marlin.host.shell import ByteStream, Client, ClientOptions, LineCallback, sole_exception
+from fake_marlin.host.url_port import open_port
 
 DEFAULT_BAUDRATE = 250000
 _CLIENTS: dict[str, type[Client]] = {
@@ -64,9 +64,10 @@ async def open_printer(
     options: ClientOptions = ClientOptions(),
     on_line: LineCallback | None = None,
 ) -> AsyncIterator[Client]:
-    """Open a serial port (the emulator's pty or a real printer) and talk to the printer on it."""
+    """Open a serial port (the emulator's pty or a real printer), or a network port by URL
+    (socket://HOST:PORT, rfc2217://HOST:PORT), and talk to the printer on it."""
     _client_class(protocol)
-    serial_port = SerialPort.open(port, baudrate)
+    serial_port = await open_port(port, baudrate)
     try:
         async with connect(serial_port, protocol, options, on_line) as client:
             yield client

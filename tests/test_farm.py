@@ -58,7 +58,7 @@ count = 2
     ("[[printer]]\ncount = 0", "[[printer]] #1 count: must be at least 1"),
     ("[[printer]]\ncount = 2\njournal = 'same.log'", "printers 1 and 2 would share the journal"),
     ("[[printer]]\ntcp = 9000\n[[printer]]\ntcp = 9000", "printers 1 and 2 would share port 9000"),
-    ("[[printer]]\ntcp = 'x:port'", "[[printer]] #1 tcp: expected [HOST:]PORT"),
+    ("[[printer]]\ntcp = 'x:port'", "[[printer]] #1 tcp: the port must be a number"),
     ("[[printer]]\ntcp = 1\nlink = '/tmp/x'", "a printer on TCP has no pty"),
     ("[[printer]]\nscenario = 'nowhere.toml'", "[[printer]] #1 scenario:"),
     ("[[printer]]\nscenario = 'x.toml'\nprotocol = 'marlin'", "protocol: comes from the scenario"),

@@ -18,11 +18,13 @@ scenario's `[printer]` table plus these:
 Every mistake is reported with the file, the printer table and the key, as scenario errors are.
 """
 
+import argparse
 import dataclasses
 import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 
+from fake_marlin.emulator.cli.links import tcp_address
 from fake_marlin.emulator.faults.layer import FaultConfig
 from fake_marlin.emulator.scenario.definition import (
     PrinterSetup,
@@ -69,17 +71,13 @@ def numbered(pattern: str | None, number: int) -> str | None:
 
 
 def parse_address(text: str | int) -> Address:
-    """`[HOST:]PORT` (an int is a port); ValueError with the reason."""
-    if isinstance(text, int) and not isinstance(text, bool):
-        host, port_text = "127.0.0.1", str(text)
-    elif isinstance(text, str):
-        host, _, port_text = text.rpartition(":")
-        host = host.strip("[]") or "127.0.0.1"
-    else:
+    """`[HOST:]PORT` (an int is a port), as --tcp takes it; ValueError with the reason."""
+    if isinstance(text, bool) or not isinstance(text, (str, int)):
         raise ValueError(f"expected [HOST:]PORT, got {text!r}")
-    if not port_text.isdigit() or not 0 <= int(port_text) <= 65535:
-        raise ValueError(f"expected [HOST:]PORT with a port from 0 to 65535, got {text!r}")
-    return Address(host, int(port_text))
+    try:
+        return Address(*tcp_address(str(text)))
+    except argparse.ArgumentTypeError as error:
+        raise ValueError(str(error)) from None
 
 
 def copies(plan: PrinterPlan, count: int, first: int = 1) -> list[PrinterPlan]:

@@ -15,10 +15,18 @@ from fake_marlin import __version__
 from fake_marlin.emulator.control.server import Controller, check_control_path, serve_control
 from fake_marlin.emulator.faults.layer import FaultConfig, parse_fault
 from fake_marlin.emulator.journal.writer import Journal
+from fake_marlin.emulator.cli.links import (
+    LinkError,
+    add_link_arguments,
+    check_link_arguments,
+    network_link,
+)
 from fake_marlin.emulator.link.pty import PtyLink
+from fake_marlin.emulator.link.tcp import TcpLink
 from fake_marlin.emulator.printer.model import DEFAULT_CAPABILITIES, Printer, PrinterConfig
 from fake_marlin.emulator.cli.farm import (
     MAX_PRINTERS,
+    Address,
     PrinterPlan,
     check_patterns,
     copies,
@@ -103,6 +111,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "(with --printers, a pattern with {n}: /tmp/printer-{n})")
     parser.add_argument("--journal", metavar="FILE", help="append each executed command to FILE "
                         "(with --printers, a pattern with {n})")
+    add_link_arguments(parser)
     parser.add_argument(
         "--printers", type=_printer_count, default=1, metavar="N",
         help="serve N independent printers from this process, one pty each; their paths are "
@@ -252,7 +261,11 @@ def _plans(parser: argparse.ArgumentParser, args: argparse.Namespace) -> list[Pr
                              f"number, from 1), e.g. {flag} /tmp/printer-{{n}}")
     elif args.sd_dir and "{n}" not in args.sd_dir and not os.path.isdir(args.sd_dir):
         parser.error(f"argument --sd-dir: no directory {args.sd_dir}")
-    base = PrinterPlan(1, setup, faults, args.link, args.journal, args.sd_dir)
+    base = PrinterPlan(
+        1, setup, faults, args.link, args.journal, args.sd_dir,
+        tcp=Address(*args.tcp) if args.tcp else None,
+        rfc2217=Address(*args.rfc2217) if args.rfc2217 else None,
+    )
     return copies(base, args.printers)
 
 
@@ -264,7 +277,13 @@ class _Running:
         self.plan = plan
         self.journal = Journal.open(plan.journal)
         cleanup.callback(self.journal.close)
-        self.link = PtyLink()
+        self.link: PtyLink | TcpLink
+        if plan.tcp:
+            self.link = network_link("tcp", plan.tcp.host, plan.tcp.port)
+        elif plan.rfc2217:
+            self.link = network_link("rfc2217", plan.rfc2217.host, plan.rfc2217.port)
+        else:
+            self.link = PtyLink()
         cleanup.callback(self.link.close)
         self.symlink = _Symlink(plan.link, self.link.path)
         self.symlink.create()
@@ -302,6 +321,7 @@ def main(argv: list[str] | None = None) -> int:
         return bench_main(argv[1:])
     parser = build_parser()
     args = parser.parse_args(argv)
+    check_link_arguments(parser, args)
     plans = _plans(parser, args)
     try:
         check_patterns(plans)
@@ -320,6 +340,9 @@ def main(argv: list[str] | None = None) -> int:
         for plan in plans:
             try:
                 printers.append(_Running(plan, capabilities, len(plans) > 1, cleanup))
+            except LinkError as error:
+                print(f"fake-marlin: {error}", file=sys.stderr)
+                return 2
             except OSError as error:
                 what = (f"journal {error.filename}" if error.filename == plan.journal
                         else f"link {plan.link}" if plan.link else "a pty")
