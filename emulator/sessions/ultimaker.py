@@ -1,12 +1,13 @@
 """One boot of a printer speaking Ultimaker's binary protocol."""
 
 import math
+from collections import deque
 from collections.abc import Callable, Iterable
 
 import trio
 
 from fake_marlin.emulator.journal.writer import Journal
-from fake_marlin.emulator.printer.model import Printer
+from fake_marlin.emulator.printer.model import Printer, Reply
 from fake_marlin.emulator.protocols.ultimaker import (
     CommandDone,
     CommandReceived,
@@ -16,7 +17,7 @@ from fake_marlin.emulator.protocols.ultimaker import (
     RoomChanged,
     UltimakerProtocol,
 )
-from fake_marlin.emulator.sessions.driver import hold_queue_full, run_command
+from fake_marlin.emulator.sessions.driver import CommandRun, finish, hold_queue_full
 
 
 class UltimakerSession:
@@ -33,7 +34,10 @@ class UltimakerSession:
         self._send = send
         self._before_command = before_command
         self.protocol = UltimakerProtocol(queue_size)
-        self._queue_in, self._queue_out = trio.open_memory_channel[CommandReceived](math.inf)
+        self._backlog: deque[CommandReceived] = deque()  # received while a command waits
+        self._waiting: tuple[CommandReceived, CommandRun, float] | None = None
+        self._executor_idle = False  # until the executor task runs
+        self._work = trio.Event()
         self._room_may_change = trio.Event()
 
     def boot(self) -> None:
@@ -48,7 +52,11 @@ class UltimakerSession:
         self.protocol.receive_data(data)
         while (event := self.protocol.next_event()) is not None:
             if isinstance(event, CommandReceived):
-                self._queue_in.send_nowait(event)
+                if self._executor_idle and not self._backlog:
+                    self._run_here(event)  # the common case: no task hop on the way to `o`
+                else:
+                    self._backlog.append(event)
+                    self._work.set()
         self._send(self.protocol.data_to_send())
 
     async def run(self) -> None:
@@ -68,19 +76,49 @@ class UltimakerSession:
         """The command queue stays full for a while: packets are refused with `buffer full`."""
         hold_queue_full(self.protocol, seconds, nursery)
 
+    # A command runs where it arrives (in feed) until it has to wait for time (a full
+    # planner, a dwell, heating); then this task carries it on, and the packets behind it wait
+    # in the backlog, in order, as in the firmware's command queue.
     async def _execute_commands(self) -> None:
-        async for received in self._queue_out:
-            if not self.printer.halted:
-                self._before_command(received.text)
-            if self.printer.halted:
-                await trio.sleep_forever()
-            reply = await run_command(self.printer, received.text, self.journal, self._respond)
-            if self.printer.halted:
-                self.announce(reply.response_data())
-                await trio.sleep_forever()
-            room = self.printer.room(trio.current_time())
-            self._send(self.protocol.send(CommandDone(received.seq, room, reply.response_data())))
-            self._room_may_change.set()
+        while not self.printer.halted:
+            if self._waiting is not None:
+                received, run, until = self._waiting
+                self._waiting = None
+                reply = await finish(run, until)
+                self._done(received, reply)
+            elif self._backlog:
+                self._executor_idle = False
+                self._run_here(self._backlog.popleft())
+            else:
+                self._executor_idle = True
+                work = self._work = trio.Event()
+                await work.wait()
+        await trio.sleep_forever()
+
+    def _run_here(self, received: CommandReceived) -> None:
+        if not self.printer.halted:
+            self._before_command(received.text)
+        if self.printer.halted:
+            self._executor_idle = False  # it runs nothing more until the printer is reset
+            return
+        run = CommandRun(self.printer, received.text, self.journal, self._respond)
+        until = run.advance()
+        if until is None:
+            self._done(received, run.reply)
+        else:
+            self._executor_idle = False
+            self._waiting = (received, run, until)
+            self._work.set()
+
+    def _done(self, received: CommandReceived, reply: Reply) -> None:
+        if self.printer.halted:
+            self.announce(reply.response_data())
+            self._backlog.clear()
+            return
+        room = self.printer.room(trio.current_time())
+        self._send(self.protocol.send(CommandDone(received.seq, room, reply.response_data())))
+        if self.protocol.reported_room == 0:
+            self._room_may_change.set()  # the room reporter times the `q` for when it opens
 
     def _respond(self, text: str) -> None:
         if text.startswith("Error:"):
