@@ -124,8 +124,10 @@ class Printer:
     def next_room_change(self, now: float) -> float | None:
         return self.planner.next_change(now)
 
-    def execute(self, line: str, now: float) -> Step:
-        command = parse(line)
+    def execute(self, line: str, now: float, command: Command | None = None) -> Step:
+        """Run `line` (`command` if the caller has parsed it already)."""
+        if command is None:
+            command = parse(line)
         if not command.text:
             return Reply()
         handler = HANDLERS.get(command.code)

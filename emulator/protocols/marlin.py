@@ -117,10 +117,11 @@ class MarlinProtocol:
         start = 0
         for end in _LINE_END.finditer(data):
             self._emergency_take(data[start:end.start()])
-            line = self._emergency_line.decode("ascii", "replace").strip()
-            match = _EMERGENCY.match(line)
-            if match:
-                self._emergencies.append(EmergencyCommand(re.sub(r"\s+", " ", match[1])))
+            if b"M" in self._emergency_line:  # every emergency command is an M code
+                line = self._emergency_line.decode("ascii", "replace").strip()
+                match = _EMERGENCY.match(line)
+                if match:
+                    self._emergencies.append(EmergencyCommand(re.sub(r"\s+", " ", match[1])))
             self._emergency_line.clear()
             start = end.end()
         self._emergency_take(data[start:])

@@ -5,7 +5,7 @@ from collections.abc import Callable
 import trio
 
 from fake_marlin.emulator.journal.writer import Journal
-from fake_marlin.emulator.printer.gcode import parse
+from fake_marlin.emulator.printer.gcode import Command, parse
 from fake_marlin.emulator.printer.model import Printer, Reply, Report, Sleep
 from fake_marlin.wire.gcode import strip_comment
 
@@ -21,7 +21,12 @@ class CommandRun:
     """
 
     def __init__(
-        self, printer: Printer, line: str, journal: Journal, on_report: Callable[[str], None]
+        self,
+        printer: Printer,
+        line: str,
+        journal: Journal,
+        on_report: Callable[[str], None],
+        command: Command | None = None,
     ) -> None:
         self.printer = printer
         self.line = line
@@ -29,7 +34,7 @@ class CommandRun:
         self.on_report = on_report
         self.reply = Reply()
         self._halted_before = printer.halted
-        self._steps = printer.execute(line, trio.current_time())
+        self._steps = printer.execute(line, trio.current_time(), command)
         self._started = False
 
     def advance(self) -> float | None:

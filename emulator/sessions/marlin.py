@@ -177,7 +177,7 @@ class MarlinSession:
         if self.printer.halted:
             return None
         self._reports = self._report_settings()
-        return CommandRun(self.printer, text, self.journal, self._say)
+        return CommandRun(self.printer, text, self.journal, self._say, command)
 
     async def _finish_waiting(self, command: Command, run: CommandRun, until: float | None) -> Reply:
         self._set_busy(until is not None and command.code not in SELF_REPORTING)
