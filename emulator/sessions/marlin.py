@@ -227,17 +227,21 @@ class MarlinSession:
             self._busy_changed.set()
 
     async def _keep_host_alive(self) -> None:
-        """`echo:busy: processing` while a command holds the queue, as HOST_KEEPALIVE does."""
+        """`echo:busy: processing` once a command has held the queue for the interval, then at
+        each interval, as host_keepalive() does: its next signal moves on while not busy, so a
+        command that waits less (a move for planner room) says nothing."""
         next_signal = -math.inf
         while True:
             changed = self._busy_changed = trio.Event()
             deadline = math.inf
+            now = trio.current_time()
             if self._busy and self.busy_interval > 0 and not self.printer.halted:
-                now = trio.current_time()
                 if now >= next_signal:
                     self._say("echo:busy: processing")
                     next_signal = now + self.busy_interval
                 deadline = next_signal
+            else:
+                next_signal = now + self.busy_interval
             with trio.move_on_at(deadline):
                 await changed.wait()
 
