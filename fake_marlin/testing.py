@@ -8,6 +8,13 @@
         assert printer.journal == [...]        # the commands the printer executed
         printer.control.inject(kind="thermal-runaway")
 
+A print farm's tests can have many printers in one process:
+
+    with running_printer(protocol="marlin", printers=50) as farm:
+        hosts = [MyHost(farm.printer(n).port) for n in range(1, 51)]
+        ...
+        assert farm.printer(7).journal == [...]
+
 With pytest the same comes as fixtures (`fake_printer`, `fake_printer_factory`; see
 fake_marlin.pytest_plugin). The printer runs as its own process, exactly the program users run,
 so it serves hosts in threads and in any event loop alike, and never competes with the test for
@@ -51,6 +58,7 @@ from fake_marlin.emulator.server.lifecycle import PrinterServer, ServerConfig
 
 __all__ = [
     "FakePrinter",
+    "FarmPrinter",
     "MemoryPrinter",
     "PrinterCrashed",
     "PrinterOptions",
@@ -84,16 +92,20 @@ class FakePrinter:
         keep_directory: bool,
         program: Sequence[str] | None = None,
         link: Path | None = None,
+        printers: int = 1,
     ) -> None:
         self.directory = directory
         self.link = link  # the symlink to the pty, if one was asked for
+        self.printers = printers
         self._keep_directory = keep_directory
-        self._journal_path = directory / "journal.log"
+        self._journal_path = directory / ("journal.log" if printers == 1 else "journal-{n}.log")
         self._control_path = directory / "control.sock"
         self._stderr_path = directory / "stderr.log"
         self._control: ControlClient | None = None
         self._stopped = False
-        self._final: tuple[str, list[str]] | None = None  # stderr and journal, kept at stop
+        # stderr and each printer's journal, kept at stop
+        self._final: tuple[str, list[list[str]]] | None = None
+        self._farm_controls: dict[int, ControlClient] = {}
         self.returncode: int | None = None
         command = [
             *(program or DEFAULT_PROGRAM),
@@ -112,7 +124,7 @@ class FakePrinter:
         self._announced = threading.Condition()
         self._stdout_closed = False
         threading.Thread(target=self._read_paths, name="fake-printer-stdout", daemon=True).start()
-        if not self._wait_for(1, START_TIMEOUT):
+        if not self._wait_for(printers, START_TIMEOUT):
             self.stop(check=False)
             raise PrinterCrashed(
                 f"fake-marlin did not start ({' '.join(self.args)}):\n{self.stderr}"
@@ -156,14 +168,21 @@ class FakePrinter:
         """Every command the printer has executed, in order, as it executed it."""
         self._check_alive()
         if self._final is not None:
-            return list(self._final[1])
+            return list(self._final[1][0])
         return self._read_journal()
 
-    def _read_journal(self) -> list[str]:
+    def _read_journal(self, number: int = 1) -> list[str]:
+        path = Path(str(self._journal_path).replace("{n}", str(number)))
         try:
-            return self._journal_path.read_text(encoding="ascii", errors="replace").splitlines()
+            return path.read_text(encoding="ascii", errors="replace").splitlines()
         except FileNotFoundError:
             return []
+
+    def printer(self, number: int) -> "FarmPrinter":
+        """Printer `number` (from 1) of a process started with printers=N."""
+        if not 1 <= number <= self.printers:
+            raise IndexError(f"printer {number}: this process serves printers 1 to {self.printers}")
+        return FarmPrinter(self, number)
 
     @property
     def control(self) -> ControlClient:
@@ -202,8 +221,9 @@ class FakePrinter:
             return
         died_on_its_own = self.process.poll() is not None
         self._stopped = True
-        if self._control is not None:
-            self._control.close()
+        for client in [self._control, *self._farm_controls.values()]:
+            if client is not None:
+                client.close()
         if not died_on_its_own:
             self.process.send_signal(signal.SIGINT)
         try:
@@ -217,7 +237,9 @@ class FakePrinter:
                 )
         report = self._crash_report()
         failed = died_on_its_own or self.returncode != 0 or "Traceback" in self.stderr
-        self._final = (self.stderr, self._read_journal())
+        self._final = (
+            self.stderr, [self._read_journal(n) for n in range(1, self.printers + 1)]
+        )
         if not self._keep_directory:
             shutil.rmtree(self.directory, ignore_errors=True)
         if check and failed:
@@ -232,6 +254,37 @@ class FakePrinter:
     def __repr__(self) -> str:
         port = self.ports[-1] if self.ports else None
         return f"<FakePrinter {port} {'running' if self.alive else 'stopped'}>"
+
+
+class FarmPrinter:
+    """One printer of a FakePrinter process that serves several (`printers=N`): its port,
+    journal and control channel."""
+
+    def __init__(self, process: FakePrinter, number: int) -> None:
+        self.process = process
+        self.number = number
+
+    @property
+    def port(self) -> str:
+        return self.process.ports[self.number - 1]
+
+    @property
+    def journal(self) -> list[str]:
+        process = self.process
+        process._check_alive()
+        if process._final is not None:
+            return list(process._final[1][self.number - 1])
+        return process._read_journal(self.number)
+
+    @property
+    def control(self) -> ControlClient:
+        process = self.process
+        process._check_alive()
+        if self.number not in process._farm_controls:
+            process._farm_controls[self.number] = ControlClient(
+                str(process._control_path), printer=self.number
+            )
+        return process._farm_controls[self.number]
 
 
 class PrinterOptions(TypedDict, total=False):
@@ -250,7 +303,8 @@ class PrinterOptions(TypedDict, total=False):
     scenario: str | os.PathLike[str]  # take settings and faults from this scenario file
     boot_delay: float
     capabilities: Mapping[str, bool]  # M115 Cap: lines, e.g. {"AUTOREPORT_TEMP": False}
-    link: str | os.PathLike[str]  # also make this path a symlink to the pty
+    link: str | os.PathLike[str]  # also make this path a symlink to the pty ({n} with printers)
+    printers: int  # serve this many printers from one process: FakePrinter.printer(n)
     extra_args: Sequence[str]  # more arguments, as on the command line
 
 
@@ -302,6 +356,8 @@ def command_line(options: PrinterOptions) -> list[str]:
         args += ["--capability", f"{name}={int(enabled)}"]
     if "link" in options:
         args += ["--link", os.fspath(options["link"])]
+    if options.get("printers", 1) != 1:
+        args += ["--printers", str(options["printers"])]
     return [*args, *options.get("extra_args", ())]
 
 
@@ -316,13 +372,15 @@ def start_printer(
     args = command_line(options)
     # A short directory of its own: a Unix socket's path must stay under 108 bytes.
     directory = Path(tempfile.mkdtemp(prefix="fake-marlin-"))
+    printers = options.get("printers", 1)
     if "sd_dir" not in options:
         # The card lives in the printer's directory, so it goes with it even after a kill.
-        (directory / "sd").mkdir()
-        args += ["--sd-dir", str(directory / "sd")]
+        if printers == 1:
+            (directory / "sd").mkdir()
+        args += ["--sd-dir", str(directory / ("sd" if printers == 1 else "sd-{n}"))]
     link = options.get("link")
     return FakePrinter(
-        args, directory, keep_directory, program, None if link is None else Path(link)
+        args, directory, keep_directory, program, None if link is None else Path(link), printers
     )
 
 

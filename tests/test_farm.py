@@ -90,32 +90,27 @@ class Farm:
         return stderr
 
 
-async def test_printers_share_a_process_and_nothing_else(tmp_path):
+async def test_printers_share_a_process_and_nothing_else(fake_printer_factory, tmp_path):
     job = [f"G1 X{n} F6000" for n in range(1, 41)]
-    farm = Farm(["--printers", "3", "--protocol", "marlin", "--speed", "100",
-                 "--link", str(tmp_path / "printer-{n}"), "--journal", str(tmp_path / "{n}.log"),
-                 "--control", str(tmp_path / "control")], 3)
-    try:
-        assert len(set(farm.paths)) == 3 and all(p.startswith("/dev/") for p in farm.paths)
-        for n, path in enumerate(farm.paths, start=1):
-            assert (tmp_path / f"printer-{n}").resolve() == Path(path)
-        async with open_printer(str(tmp_path / "printer-2"), protocol="marlin") as host:
-            await host.print_commands(job)
-        with ControlClient(str(tmp_path / "control")) as control:
-            listed = control.printers()
-            assert [(p["printer"], p["path"]) for p in listed] == list(enumerate(farm.paths, 1))
-            assert [p["boots"] for p in listed] == [1, 2, 1]  # only the port opened reset
-            with pytest.raises(ControlRequestError, match="serves 3 printers: say which"):
-                control.state()
-        with ControlClient(str(tmp_path / "control"), printer=2) as control:
-            assert control.state()["position"]["X"] == 40
-        with ControlClient(str(tmp_path / "control"), printer=4) as control:
-            with pytest.raises(ControlRequestError, match="from 1 to 3"):
-                control.state()
-    finally:
-        assert "Traceback" not in farm.stop()
-    assert (tmp_path / "2.log").read_text().split("\n")[-41:-1] == job
-    assert (tmp_path / "1.log").read_text() == (tmp_path / "3.log").read_text() == ""
+    farm = fake_printer_factory(printers=3, protocol="marlin", speed=100,
+                                link=tmp_path / "printer-{n}")
+    assert len(set(farm.ports)) == 3 and all(p.startswith("/dev/") for p in farm.ports)
+    for n in (1, 2, 3):
+        assert (tmp_path / f"printer-{n}").resolve() == Path(farm.printer(n).port)
+    async with open_printer(str(tmp_path / "printer-2"), protocol="marlin") as host:
+        await host.print_commands(job)
+    assert farm.printer(2).journal[-40:] == job
+    assert farm.printer(1).journal == farm.printer(3).journal == []
+    listed = farm.control.printers()
+    assert [(p["printer"], p["path"]) for p in listed] == list(enumerate(farm.ports, 1))
+    assert [p["boots"] for p in listed] == [1, 2, 1]  # only the port opened reset
+    with pytest.raises(ControlRequestError, match="serves 3 printers: say which"):
+        farm.control.state()
+    assert farm.printer(2).control.state()["position"]["X"] == 40
+    with pytest.raises(IndexError):
+        farm.printer(4)
+    farm.stop()
+    assert farm.printer(2).journal[-40:] == job  # kept after the stop
     assert not any((tmp_path / f"printer-{n}").exists() for n in (1, 2, 3))  # links removed
 
 
