@@ -100,7 +100,8 @@ def build_parser() -> argparse.ArgumentParser:
         prog="fake-marlin",
         description="Start a virtual Marlin printer on a pseudo-terminal and print its /dev/pts path.",
         epilog="Also: `fake-marlin scenario run PATH...` runs scenarios with the built-in host; "
-        "`fake-marlin verify JOB.gcode JOURNAL` checks a journal against its job.",
+        "`fake-marlin verify JOB.gcode JOURNAL` checks a journal against its job; "
+        "`fake-marlin bench` measures its speed against a bare responder.",
     )
     parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
     parser.add_argument(
@@ -224,6 +225,8 @@ def _plans(parser: argparse.ArgumentParser, args: argparse.Namespace) -> list[Pr
         given = [flag for flag, value in (
             ("--printers", args.printers != 1), ("--scenario", args.scenario),
             ("--link", args.link), ("--journal", args.journal), ("--sd-dir", args.sd_dir),
+            ("--tcp", args.tcp), ("--rfc2217", args.rfc2217), ("--fault", args.fault),
+            ("--fault-table", args.fault_table),
         ) if value]
         if given:
             parser.error(f"argument --farm: {given[0]} goes in the farm file's [[printer]] tables")
@@ -272,7 +275,7 @@ def _plans(parser: argparse.ArgumentParser, args: argparse.Namespace) -> list[Pr
 class _Running:
     """One printer of this process and what it holds open: its link, symlink, journal, card."""
 
-    def __init__(self, plan: PrinterPlan, capabilities: dict[str, bool], speed_note: bool,
+    def __init__(self, plan: PrinterPlan, capabilities: dict[str, bool], in_farm: bool,
                  cleanup: contextlib.ExitStack) -> None:
         self.plan = plan
         self.journal = Journal.open(plan.journal)
@@ -292,7 +295,7 @@ class _Running:
         def new_path(path: str) -> None:
             self.symlink.retarget(path)
             # The line came back on a new pty: say where, as at start (which printer, in a farm).
-            print(path if not speed_note else f"printer {plan.number}: {path}", flush=True)
+            print(path if not in_farm else f"printer {plan.number}: {path}", flush=True)
 
         self.link.on_new_path = new_path
         if plan.sd_dir:
