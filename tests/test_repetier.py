@@ -507,3 +507,23 @@ def test_the_same_resend_for_a_line_the_host_never_had_means_the_printer_restart
     say(sender, "\r\nResend:200\r\nok\r\n" * 2, 1.0)  # once or twice: a damaged number
     with pytest.raises(PrinterReset, match="asks for line 200"):
         say(sender, "\r\nResend:200\r\nok\r\n", 1.2)
+
+
+def test_a_restart_whose_start_line_is_lost_is_still_a_restart():
+    """Its reset reason says it too; and without either, a Resend for a line long acknowledged
+    (the restarted firmware wants line 1) is no wrong acknowledgement to go back to."""
+    sender = connected(lines=60)
+    for _ in range(8):
+        window = sent(sender, 0)
+        say(sender, "".join(f"ok {n}\r\n" for n in window if n != "NUL"), 0.1)
+    with pytest.raises(PrinterReset, match="Watchdog Reset"):
+        say(sender, "Info:Watchdog Reset\r\nFree RAM:3412\r\n", 0.2)
+    sender = connected(lines=60)
+    for _ in range(8):
+        window = sent(sender, 0)
+        say(sender, "".join(f"ok {n}\r\n" for n in window if n != "NUL"), 0.1)
+    with pytest.raises(PrinterReset, match="asks for line 1,"):
+        for attempt in range(3):
+            say(sender, "Error:expected line 1 got 60\r\n\r\nResend:1\r\nok\r\n", 0.3 + attempt)
+            sent(sender, 0.3 + attempt)
+    assert sender.stats.rewinds == 0

@@ -68,7 +68,11 @@ UNKNOWN_RESENDS_MEAN_RESET = 3  # the same Resend for a line long gone: the prin
 KEEPALIVE_MARGIN = 5.0  # seconds of silence allowed once the printer sends busy: (every 2 s)
 IDENTIFY = "M115"
 RESEND_GUARD = 0.5  # s: longer than the firmware's 200 ms between repeated Resends
-HISTORY = 128  # acknowledged lines kept, in case a damaged number acknowledged them wrongly
+# Acknowledged lines kept, in case a damaged number acknowledged them wrongly. Only lines in
+# flight can be, and the printer's 127-byte cache holds a dozen at most: a wrong acknowledgement
+# is among the last two windows. A Resend for a line further back is no wrong acknowledgement
+# but a printer counting from elsewhere: one that restarted, its `start` lost.
+HISTORY = 32
 TAKE_AHEAD = 64  # commands taken from the backlog into the send queue
 
 
