@@ -75,6 +75,7 @@ UPLOAD_ATTEMPTS = 3  # times the file may prove wrong at one place before the up
 MIN_CHUNK = 8  # the smallest FileSaveData chunk, and the first (the MK20 stores any length)
 GROW_AFTER = 512  # bytes stored at the first try, running, before the chunk size doubles
 OPEN_TRIES = 3  # times max_transmissions: FileOpenForWrite's JSON is the longest request
+LENGTH_TRIES = 4  # times max_transmissions: asking the file's length, once a sync is answered
 SYNC_TASKS = range(0x40, 0x100)  # task IDs no firmware uses: the MK20 answers them success
 REPORTS = frozenset({"M27", "M105", "M114", "M115", "M20", "M31"})  # harmless to ask twice
 
@@ -411,7 +412,11 @@ def _length_now(link: Link, max_transmissions: int) -> Steps[int | None]:
     printer does not say): a sync, then an empty FileSaveData. Asking again is safe, as no
     data is on the way: any answer to it is the same."""
     yield from sync(link, max_transmissions)
-    for _ in range(max_transmissions):
+    # The sync was answered: the printer is there, and this question is safe to repeat, so
+    # ask longer than for a request that could not be. Each answer cut short also takes the
+    # next with it (the bytes left without their 0x00 spoil the frame after them), so at a
+    # few percent of damaged frames eight tries in a row can all be lost.
+    for _ in range(LENGTH_TRIES * max_transmissions):
         reply = yield Request(Task.FILE_SAVE_DATA, b"")
         if reply.outcome is Outcome.SUCCESS:
             return stored_length(reply.answer)
