@@ -20,7 +20,6 @@ Every mistake is reported with the file, the printer table and the key, as scena
 
 import argparse
 import dataclasses
-import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -33,6 +32,7 @@ from fake_marlin.emulator.scenario.definition import (
     add_fault_table,
     load,
     read_printer_table,
+    read_toml,
 )
 
 MAX_PRINTERS = 10_000  # more than one process can serve; a typo, not a farm
@@ -126,15 +126,7 @@ def check_patterns(plans: list[PrinterPlan]) -> None:
 
 def load_farm(path: str | Path) -> list[PrinterPlan]:
     path = Path(path)
-    try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
-    except OSError as error:
-        raise FarmError(f"{path}: cannot read: {error.strerror}") from None
-    except UnicodeDecodeError:
-        raise FarmError(f"{path}: not UTF-8 text") from None
-    except tomllib.TOMLDecodeError as error:
-        raise FarmError(f"{path}: not valid TOML: {error}") from None
-    top = TableReader(path, "", data)
+    top = TableReader(path, "", read_toml(path))
     entries = top.get("printer", list, [])
     top.finish()
     if not entries:

@@ -130,17 +130,21 @@ class _Reader:
             self.fail(unknown[0], "is not a key this table knows")
 
 
-def load(path: str | Path) -> Scenario:
-    path = Path(path)
+def read_toml(path: Path) -> dict:
+    """A TOML file's tables, or ScenarioError saying why it cannot be read."""
     try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
+        return tomllib.loads(path.read_text(encoding="utf-8"))
     except OSError as error:
         raise ScenarioError(f"{path}: cannot read: {error.strerror}") from None
     except UnicodeDecodeError:
         raise ScenarioError(f"{path}: not UTF-8 text") from None
     except tomllib.TOMLDecodeError as error:
         raise ScenarioError(f"{path}: not valid TOML: {error}") from None
-    top = _Reader(path, "", data)
+
+
+def load(path: str | Path) -> Scenario:
+    path = Path(path)
+    top = _Reader(path, "", read_toml(path))
     name = top.get("name", str, path.stem)
     description = top.get("description", str, "")
     printer = _printer(top.table_at("printer"))
