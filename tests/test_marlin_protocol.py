@@ -193,11 +193,29 @@ def test_arbitrary_bytes_never_crash_and_every_reply_is_ascii(chunks):
 
 
 class CharByChar(MarlinProtocol):
-    """The receiver as the firmware runs it: process_stream_char() for every byte."""
+    """The receiver as the firmware runs it: process_stream_char() for every byte, and every
+    line through the whole of get_serial_commands()'s rules."""
 
     def _stream_chars(self, data, start, stop):
         for position in range(start, stop):
             self._stream_char(data[position])
+
+    def _numbered_in_order(self, command):
+        return None
+
+
+@settings(max_examples=300)
+@given(st.lists(st.tuples(st.integers(-2, 4), st.text("G1 XYEF0123456789.-*() ;", max_size=30),
+                          st.booleans()), max_size=20))
+def test_the_usual_line_read_in_one_match_is_read_as_the_rules_read_it(lines):
+    """Numbered lines near the expected number, right or wrong checksums, stray `*` and `(`."""
+    fast, slow = MarlinProtocol(), CharByChar()
+    for offset, text, right in lines:
+        body = f"N{fast.last_n + offset} {text}"
+        wire = f"{body}*{xor_checksum(body) if right else 0}\n".encode()
+        assert feed(fast, wire) == feed(slow, wire)
+        assert fast.last_n == slow.last_n
+    assert fast.data_to_send() == slow.data_to_send()
 
 
 @settings(max_examples=300)

@@ -68,6 +68,8 @@ class Output:
 
 _LEADING_INT = re.compile(r"\s*([-+]?\d+)")
 _LINE_END = re.compile(rb"[\r\n]")
+# N<digits>, spaces, a command without `*` or `(`, `*<digits>`: what a host sends nearly always
+_PLAIN_NUMBERED = re.compile(r"N(\d+)\s*([^*(]*)\*(\d+)")
 _SPECIAL = re.compile(rb"[;\\(\x08]")  # what process_stream_char() treats other than text
 _EMERGENCY = re.compile(r"(?:N-?\d+\s*)?(M(?:108|112|410)(?!\d)|M876\s*S\d+)")
 
@@ -213,6 +215,8 @@ class MarlinProtocol:
         command = raw.lstrip(" ")
         if not command:
             return None
+        if (fast := self._numbered_in_order(command)) is not None:
+            return fast
         line_number = None
         if command.startswith("N"):
             is_m110 = "M110" in command
@@ -233,6 +237,22 @@ class MarlinProtocol:
         text = strip_line_number(remove_paren_comments(command))
         if not text:
             return None
+        self._queued += 1
+        return LineReceived(text, line_number)
+
+    def _numbered_in_order(self, command: str) -> LineReceived | None:
+        """The usual line (`N<last+1> <command>*<checksum>`, checked, no comment) read in
+        one match; None for anything else, which the rules of _line_done() read in full."""
+        match = _PLAIN_NUMBERED.fullmatch(command)
+        if match is None or "M110" in command or int(match[1]) != self.last_n + 1:
+            return None
+        star = match.start(3) - 1
+        if int(match[3]) != xor_checksum(command[:star]):
+            return None
+        text = match[2].strip()
+        if not text:
+            return None
+        self.last_n = line_number = int(match[1])
         self._queued += 1
         return LineReceived(text, line_number)
 
