@@ -35,11 +35,18 @@ class Pipe:
         self._free_at = -math.inf  # when the last queued byte will have arrived
         self._changed = trio.Event()
         self.baud: int | None = conditions.baud
+        self._delays = conditions.latency > 0 or conditions.jitter > 0
+
+    @property
+    def passes_through(self) -> bool:
+        """Bytes put now would be delivered at once: nothing on the way, no pacing, no delay.
+        (Nothing queued also means the last delivery is done: a stall waits in the queue.)"""
+        # self.baud, not the conditions': it may be the rate the host set (baud_from_host).
+        return not self._queue and not self.baud and not self._delays
 
     def put(self, data: bytes, pause: float = 0.0) -> None:
         now = trio.current_time()
-        # self.baud, not the conditions': it may be the rate the host set (baud_from_host).
-        paced = bool(self.baud) or self.conditions.latency > 0 or self.conditions.jitter > 0
+        paced = bool(self.baud) or self._delays
         if not self._queue and not pause and not paced and self._free_at <= now:
             self._deliver(data)
             return

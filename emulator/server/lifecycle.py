@@ -84,6 +84,8 @@ class PrinterServer:
                 # The host's open resets the board, as DTR does on a real one; what the host
                 # sends next is read by the new boot.
                 await self._restart(" External Reset")
+            elif self.faults.quiet_to_printer and self._to_printer.passes_through:
+                self._feed_session(item)  # the common case: straight to the session
             elif self.faults.quiet_to_printer:
                 self._to_printer.put(item)
             else:
@@ -144,7 +146,9 @@ class PrinterServer:
     def _send(self, data: bytes) -> None:
         if not data:
             return
-        if self.faults.quiet_to_host:
+        if self.faults.quiet_to_host and self._to_host.passes_through:
+            self.link.send(data)  # the common case: straight to the link
+        elif self.faults.quiet_to_host:
             self._to_host.put(data)
         else:
             self._carry(self.faults.to_host(data), self._to_host)

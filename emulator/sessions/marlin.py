@@ -218,6 +218,8 @@ class MarlinSession:
             self._say(f"Resend: {self.protocol.last_n + 1}")
 
     def _room(self) -> int:
+        if not self.protocol.advanced_ok:
+            return 0  # only ADVANCED_OK's `ok` says it
         return self.printer.room(trio.current_time())
 
     # -- what the printer says on its own ----------------------------------------------
