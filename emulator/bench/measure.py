@@ -104,6 +104,15 @@ def _ratio(value: float | None, reference: float | None) -> float | None:
     return value / reference if value is not None and reference else None
 
 
+def _paired_ratio(values: list[float | None], references: list[float | None]) -> float | None:
+    """The median of each round's own ratio: a round's two runs go back to back, so the
+    machine's drift (several-fold within minutes here) falls on both alike, where a ratio of
+    medians would mix runs minutes apart."""
+    ratios = [value / reference for value, reference in zip(values, references)
+              if value is not None and reference]
+    return statistics.median(ratios) if ratios else None
+
+
 # -- 1. host throughput ---------------------------------------------------------------------
 HOST_GOALS = {"ours-marlin": 0.9, "octoprint": 0.95}
 ULTIMAKER_GOAL = 5000.0
@@ -113,7 +122,8 @@ def hosts(bench: Bench) -> Section:
     job, path = bench.throughput_job()
     rounds = bench.options.rounds
     section = Section("hosts", f"Host throughput: {len(job)} moves of 0.4 mm, "
-                      + (f"median of {rounds} rounds" if rounds > 1 else "one round"),
+                      + (f"median of {rounds} rounds (a ratio: of each round's pair)"
+                         if rounds > 1 else "one round"),
                       ("host", "cmd/s to fake-marlin", "cmd/s to bare responder"))
     # The same capabilities as the responder's, so that a host does the same work against
     # both: told AUTOREPORT_TEMP, OctoPrint turns on M155 S2, whose reports come every 2 ms of
@@ -124,8 +134,9 @@ def hosts(bench: Bench) -> Section:
             section.rows.append(Row(host.label, host.missing, data={"host": host.key,
                                                                    "installed": False}))
             continue
-        emulated, bare = (_summary(runs) for runs in bench.pair(host, marlin, BARE, job, path))
-        ratio = _ratio(emulated["cmd_per_s"], bare["cmd_per_s"])
+        pair = bench.pair(host, marlin, BARE, job, path)
+        emulated, bare = (_summary(runs) for runs in pair)
+        ratio = _paired_ratio(*([run.rate for run in runs] for runs in pair))
         goal = HOST_GOALS.get(host.key)
         complete = emulated["complete"] and bare["complete"]
         section.rows.append(Row(
@@ -160,13 +171,13 @@ def cpu(bench: Bench) -> Section:
     section = Section("cpu", f"Printer CPU per command: our host, Marlin, {len(job)} moves",
                       ("process", "µs CPU per command", "bare responder"))
     runs = bench.pair(our_host("marlin"), printer("marlin", "--speed", SPEED), BARE, job, path)
-    emulated, bare = ([run.printer_cpu / run.job * 1e6 for run in side
-                       if run.complete and run.printer_cpu is not None] for side in runs)
-    if not emulated or not bare:
+    if not runs[0] or not all(run.complete and run.printer_cpu is not None
+                              for side in runs for run in side):
         section.rows.append(Row("fake-marlin", "not measured: a run was incomplete"))
         return section
+    emulated, bare = ([(run.printer_cpu or 0.0) / run.job * 1e6 for run in side] for side in runs)
     mine, reference = statistics.median(emulated), statistics.median(bare)
-    ratio = _ratio(mine, reference)
+    ratio = _paired_ratio(list(emulated), list(bare))
     data = {"fake_marlin_us": mine, "bare_us": reference, "rounds": len(emulated)}
     section.rows.append(Row("fake-marlin --protocol marlin", f"{mine:.1f} µs",
                             f"{reference:.1f} µs", ratio, "ratio ≤ 2", ratio is not None and
