@@ -4,6 +4,19 @@ from dataclasses import dataclass
 from typing import Protocol
 
 
+# What the printer may keep unsent while nobody reads the port; past it the oldest bytes go,
+# as they would on a wire nobody listens to.
+MAX_PENDING_OUTPUT = 1 << 20
+
+
+def queue_output(pending: bytearray, data: bytes) -> None:
+    """Add `data` to a link's unsent output, keeping at most MAX_PENDING_OUTPUT bytes."""
+    pending += data
+    overflow = len(pending) - MAX_PENDING_OUTPUT
+    if overflow > 0:
+        del pending[:overflow]
+
+
 @dataclass(frozen=True)
 class HostOpened:
     """A host (re)opened the port."""

@@ -16,15 +16,12 @@ import tty
 
 import trio
 
-from fake_marlin.emulator.link.base import HostOpened
+from fake_marlin.emulator.link.base import HostOpened, queue_output
 
 _TCGETS2 = 0x802C542A  # _IOR('T', 0x2A, struct termios2): reads custom rates such as 250000
 _TERMIOS2 = struct.Struct("IIIIB19sII")
 _TIOCPKT_DATA = 0
 _TIOCPKT_FLUSHREAD = 1
-# What the printer may keep unsent while nobody reads the port; past it the oldest bytes go,
-# as they would on a wire nobody listens to.
-_MAX_PENDING_OUTPUT = 1 << 20
 
 
 class PtyLink:
@@ -103,10 +100,7 @@ class PtyLink:
             data = data[written:]
             if not data:
                 return
-        self._pending += data
-        overflow = len(self._pending) - _MAX_PENDING_OUTPUT
-        if overflow > 0:
-            del self._pending[:overflow]
+        queue_output(self._pending, data)
         self._output_ready.set()
 
     def host_baud(self) -> int | None:

@@ -25,12 +25,9 @@ from collections.abc import Callable
 
 import trio
 
-from fake_marlin.emulator.link.base import HostOpened
+from fake_marlin.emulator.link.base import HostOpened, queue_output
 
 REFUSAL = b"fake-marlin: this printer already has a host connected\n"
-# What the printer may keep unsent while its host does not read; past it the oldest bytes go,
-# as they would on a wire nobody listens to (as PtyLink).
-_MAX_PENDING_OUTPUT = 1 << 20
 _CHUNK = 4096
 _BACKLOG = 8
 # A refused client is given this long to read the refusal and close its end first (our close
@@ -183,10 +180,7 @@ class TcpLink:
         host = self._host
         if not data or host is None or not host.announced:
             return
-        self._pending += data
-        overflow = len(self._pending) - _MAX_PENDING_OUTPUT
-        if overflow > 0:
-            del self._pending[:overflow]
+        queue_output(self._pending, data)
         self._output_ready.set()
 
     def host_baud(self) -> int | None:
