@@ -10,6 +10,7 @@ from pathlib import Path
 
 from fake_marlin.emulator.protocols.stk500 import encode_message
 from fake_marlin.wire import commstack
+from fake_marlin.wire.checksums import xor8
 
 ROOT = Path(__file__).resolve().parent.parent
 CORPUS = ROOT / "fuzz" / "corpus"
@@ -22,10 +23,7 @@ def lines(*commands: str, start: int = 1) -> bytes:
     out = b""
     for number, command in enumerate(commands, start):
         body = f"N{number} {command}".encode()
-        checksum = 0
-        for byte in body:
-            checksum ^= byte
-        out += body + b"*%d\n" % checksum
+        out += body + b"*%d\n" % xor8(body)
     return out
 
 

@@ -19,6 +19,7 @@ from fake_marlin.host.codecs.repetier import RESYNC
 from fake_marlin.host.connect import connect
 from fake_marlin.wire import commstack, repetier, stk500, ultimaker
 from fake_marlin.wire.commstack import CommType, Packet, Task
+from fake_marlin.wire.checksums import xor8
 from fake_marlin.wire.framing import Framer, split_units
 from tests.conftest import running_printer
 
@@ -31,10 +32,7 @@ def binary(text: str, n: int, v2: bool = False) -> bytes:
 
 def numbered(n: int, text: str) -> bytes:
     body = f"N{n} {text}".encode()
-    checksum = 0
-    for byte in body:
-        checksum ^= byte
-    return body + b"*%d\n" % checksum
+    return body + b"*%d\n" % xor8(body)
 
 
 def frame(packet: Packet) -> bytes:

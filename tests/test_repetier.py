@@ -23,6 +23,7 @@ from fake_marlin.host.connect import connect
 from fake_marlin.host.cores.repetier import RepetierSender
 from fake_marlin.host.errors import PrinterNotResponding, PrinterReset
 from fake_marlin.wire import repetier
+from fake_marlin.wire.checksums import xor8
 from fake_marlin.wire.gcode import canonical
 from tests.conftest import running_printer
 
@@ -42,10 +43,7 @@ def binary(text: str, n: int | None, v2: bool = False) -> bytes:
 
 def ascii_line(n: int, text: str) -> bytes:
     body = f"N{n} {text}".encode()
-    checksum = 0
-    for byte in body:
-        checksum ^= byte
-    return body + b"*%d\n" % checksum
+    return body + b"*%d\n" % xor8(body)
 
 
 def received(protocol: RepetierProtocol, data: bytes) -> tuple[list, str]:

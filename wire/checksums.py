@@ -8,6 +8,14 @@ def crc16_ccitt_false(data: bytes) -> int:
     return binascii.crc_hqx(data, 0xFFFF)
 
 
+def xor8(data: bytes) -> int:
+    """The XOR of every byte: Marlin's line checksum (and Repetier's for ASCII lines)."""
+    checksum = 0
+    for byte in data:
+        checksum ^= byte
+    return checksum
+
+
 def _crc8_table() -> tuple[int, ...]:
     table = []
     for byte in range(256):

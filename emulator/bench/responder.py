@@ -31,6 +31,8 @@ import sys
 import termios
 import tty
 
+from fake_marlin.wire.checksums import xor8
+
 _TIOCPKT_DATA = 0
 _TIOCPKT_FLUSHREAD = 1
 _LINE = re.compile(rb"\s*(?:[Nn](-?\d+)\s*)?(.*?)(?:\*(\d*))?\s*")
@@ -76,7 +78,7 @@ class Responder:
         number, command, checksum = match[1], match[2], match[3]
         if number is not None:
             body = line[: line.rindex(b"*")] if checksum is not None else b""
-            if checksum is None or not checksum or _xor(body.lstrip()) != int(checksum):
+            if checksum is None or not checksum or xor8(body.lstrip()) != int(checksum):
                 kind = b"No Checksum with line number" if checksum is None else b"checksum mismatch"
                 return b"Error:%s, Last Line: %d\nResend: %d\nok\n" % (
                     kind, self.last_line, self.last_line + 1)
@@ -91,13 +93,6 @@ class Responder:
         elif word == b"M115":
             return M115_REPLY
         return b"ok\n"
-
-
-def _xor(data: bytes) -> int:
-    value = 0
-    for byte in data:
-        value ^= byte
-    return value
 
 
 def serve(master: int, responder: Responder) -> None:

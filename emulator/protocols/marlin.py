@@ -12,6 +12,7 @@ import re
 from dataclasses import dataclass
 from enum import Enum, auto
 
+from fake_marlin.wire.checksums import xor8
 from fake_marlin.wire.gcode import remove_paren_comments
 
 MAX_CMD_SIZE = 96
@@ -81,10 +82,7 @@ def strtol(text: str) -> int:
 
 
 def xor_checksum(text: str) -> int:
-    checksum = 0
-    for byte in text.encode("latin-1", "replace"):
-        checksum ^= byte
-    return checksum
+    return xor8(text.encode("latin-1", "replace"))
 
 
 def strip_line_number(line: str) -> str:

@@ -14,6 +14,7 @@ from typing import Generic, TypeVar, cast, overload
 
 from fake_marlin.host.codecs.lines import LineBuffer
 from fake_marlin.host.errors import CommandError
+from fake_marlin.wire.checksums import xor8
 
 # Marlin keeps at most MAX_CMD_SIZE - 1 = 95 characters of a line. "N<9 digits> " and "*255"
 # take 15 of them, so a command of 80 characters fits until line number 10^9.
@@ -43,10 +44,7 @@ PROBE = b"\nN0 M105 M110*256\n"
 
 
 def xor_checksum(data: bytes) -> int:
-    checksum = 0
-    for byte in data:
-        checksum ^= byte
-    return checksum
+    return xor8(data)
 
 
 def check_command(command: str) -> str:
