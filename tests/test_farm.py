@@ -8,7 +8,8 @@ from pathlib import Path
 
 import pytest
 
-from fake_marlin.emulator.cli.farm import Address, load_farm
+from fake_marlin.emulator.cli.farm import load_farm
+from fake_marlin.emulator.cli.links import Address
 from fake_marlin.emulator.scenario.definition import ScenarioError
 from fake_marlin.emulator.control.client import ControlClient, ControlRequestError
 from fake_marlin.host import open_printer

@@ -17,9 +17,12 @@ import pytest
 import trio
 
 from fake_marlin.emulator.cli import links
+from fake_marlin.emulator.cli.farm import PrinterPlan, copies
+from fake_marlin.emulator.faults.layer import FaultConfig
 from fake_marlin.emulator.journal.writer import Journal
 from fake_marlin.emulator.link.tcp import REFUSAL, LinkError, TcpLink
 from fake_marlin.emulator.printer.model import Printer
+from fake_marlin.emulator.scenario.definition import PrinterSetup
 from fake_marlin.emulator.server.clock import ScaledClock
 from fake_marlin.emulator.server.lifecycle import PrinterServer, ServerConfig
 from fake_marlin.host import open_printer
@@ -212,9 +215,20 @@ def link_parser():
     return parser
 
 
+def plans(argv: list[str], count: int) -> list[PrinterPlan]:
+    """What --printers `count` makes of these link arguments: each printer's addresses."""
+    args = link_parser().parse_args(argv)
+    base = PrinterPlan(1, PrinterSetup(), FaultConfig(),
+                       tcp=args.tcp, rfc2217=args.rfc2217)
+    return copies(base, count)
+
+
+def links_of(plans: list[PrinterPlan]) -> list:
+    return [links.make_link(plan.tcp, plan.rfc2217) for plan in plans]
+
+
 def test_make_link_gives_printer_n_the_port_plus_n():
-    args = link_parser().parse_args(["--tcp", "127.0.0.1:0"])
-    made = [links.make_link(args, index) for index in range(2)]
+    made = links_of(plans(["--tcp", "127.0.0.1:0"], 2))
     try:
         assert all(isinstance(link, TcpLink) for link in made)
         assert made[0].port != made[1].port  # port 0: each its own free port
@@ -223,13 +237,12 @@ def test_make_link_gives_printer_n_the_port_plus_n():
             link.close()
     with socket.create_server(("127.0.0.1", 0)) as probe:
         free = probe.getsockname()[1]
-    args = link_parser().parse_args(["--rfc2217", str(free)])
-    second = links.make_link(args, 1)
+    second = links_of(plans(["--rfc2217", str(free)], 2)[1:])[0]
     try:
         assert second.path == f"rfc2217://127.0.0.1:{free + 1}"
     finally:
         second.close()
-    assert links.make_link(link_parser().parse_args([]), 0) is None
+    assert links_of(plans([], 1)) == [None]
 
 
 @pytest.mark.parametrize("argv, message", [

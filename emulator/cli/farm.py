@@ -23,7 +23,7 @@ import dataclasses
 from dataclasses import dataclass
 from pathlib import Path
 
-from fake_marlin.emulator.cli.links import tcp_address
+from fake_marlin.emulator.cli.links import Address, tcp_address
 from fake_marlin.emulator.faults.layer import FaultConfig
 from fake_marlin.emulator.scenario.definition import (
     PrinterSetup,
@@ -41,15 +41,6 @@ _FARM_KEYS = ("count", "scenario", "seed", "link", "journal", "sd_dir", "tcp", "
 
 class FarmError(ScenarioError):
     """A farm file or --printers setting that cannot be used; the message says where and why."""
-
-
-@dataclass(frozen=True)
-class Address:
-    host: str
-    port: int
-
-    def plus(self, offset: int) -> "Address":
-        return Address(self.host, self.port + offset if self.port else 0)
 
 
 @dataclass(frozen=True)
@@ -75,7 +66,7 @@ def parse_address(text: str | int) -> Address:
     if isinstance(text, bool) or not isinstance(text, (str, int)):
         raise ValueError(f"expected [HOST:]PORT, got {text!r}")
     try:
-        return Address(*tcp_address(str(text)))
+        return tcp_address(str(text))
     except argparse.ArgumentTypeError as error:
         raise ValueError(str(error)) from None
 

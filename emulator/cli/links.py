@@ -2,16 +2,17 @@
 
     add_link_arguments(parser)          # --tcp [HOST:]PORT | --rfc2217 [HOST:]PORT
     check_link_arguments(parser, args)  # after parse_args: options that need a pty
-    link = make_link(args, index)       # printer `index` (0-based): a TcpLink, an
-                                        # Rfc2217Link, or None for the default pty
+    link = make_link(plan.tcp, plan.rfc2217)   # a TcpLink, an Rfc2217Link, or None (a pty)
 
-Printer `index` listens on PORT + index (PORT 0: each its own free port); its `path`, printed
-as the pty's is, is the URL a host opens (socket://HOST:PORT, rfc2217://HOST:PORT). make_link
-binds at once, so a taken port is a LinkError (say it and exit 2) before anything else starts.
+Printer n of --printers listens on PORT + n - 1 (PORT 0: each its own free port; the farm's
+copies() gives each its address); its `path`, printed as the pty's is, is the URL a host opens
+(socket://HOST:PORT, rfc2217://HOST:PORT). make_link binds at once, so a taken port is a
+LinkError (say it and exit 2) before anything else starts.
 """
 
 import argparse
 import ipaddress
+from dataclasses import dataclass
 
 from fake_marlin.emulator.link.rfc2217 import Rfc2217Link
 from fake_marlin.emulator.link.tcp import LinkError, TcpLink
@@ -19,12 +20,23 @@ from fake_marlin.emulator.link.tcp import LinkError, TcpLink
 DEFAULT_HOST = "127.0.0.1"  # only this machine, unless a host (0.0.0.0: every interface) is given
 
 __all__ = [
-    "LinkError", "add_link_arguments", "check_link_arguments", "make_link", "network_link",
-    "tcp_address",
+    "Address", "LinkError", "add_link_arguments", "check_link_arguments", "make_link", "tcp_address",
 ]
 
 
-def tcp_address(text: str) -> tuple[str, int]:
+@dataclass(frozen=True)
+class Address:
+    """Where a printer listens: HOST and PORT (0: a free port, chosen when it binds)."""
+
+    host: str
+    port: int
+
+    def plus(self, offset: int) -> "Address":
+        """The address of the printer `offset` places on: the next ports (or each a free one)."""
+        return Address(self.host, self.port + offset if self.port else 0)
+
+
+def tcp_address(text: str) -> Address:
     """[HOST:]PORT as (host, port): `8099`, `0.0.0.0:8099`, `localhost:0`, `[::1]:8099`."""
     expected = f"expected [HOST:]PORT, e.g. 8099 or 0.0.0.0:8099 ([::1]:8099 in IPv6), got {text!r}"
     host, colon, port = text.rpartition(":")
@@ -42,7 +54,7 @@ def tcp_address(text: str) -> tuple[str, int]:
         raise argparse.ArgumentTypeError(
             f"the port must be a number from 0 (any free port) to 65535, got {port!r} in {text!r}"
         )
-    return host, int(port)
+    return Address(host, int(port))
 
 
 def add_link_arguments(parser: argparse.ArgumentParser) -> None:
@@ -67,18 +79,12 @@ def check_link_arguments(parser: argparse.ArgumentParser, args: argparse.Namespa
         parser.error(f"argument --link: there is no pty to link to with {network}")
 
 
-def make_link(args: argparse.Namespace, index: int) -> TcpLink | None:
-    """The link for printer `index` (0-based), bound and listening; None: the default pty.
-    Raises LinkError when it cannot listen (the port is taken, past 65535, an unknown host)."""
-    if args.tcp:
-        host, port = args.tcp
-        return network_link("tcp", host, port + index if port else 0)
-    if args.rfc2217:
-        host, port = args.rfc2217
-        return network_link("rfc2217", host, port + index if port else 0)
+def make_link(tcp: Address | None, rfc2217: Address | None) -> TcpLink | None:
+    """The link for a printer served on TCP or RFC 2217, bound and listening; None: the
+    default pty. Raises LinkError when it cannot listen (the port is taken, past 65535, an
+    unknown host)."""
+    if tcp is not None:
+        return TcpLink(tcp.host, tcp.port)
+    if rfc2217 is not None:
+        return Rfc2217Link(rfc2217.host, rfc2217.port)
     return None
-
-
-def network_link(kind: str, host: str, port: int) -> TcpLink:
-    """A TcpLink (`tcp`) or Rfc2217Link (`rfc2217`) listening on host:port (0: a free port)."""
-    return {"tcp": TcpLink, "rfc2217": Rfc2217Link}[kind](host, port)

@@ -19,14 +19,13 @@ from fake_marlin.emulator.cli.links import (
     LinkError,
     add_link_arguments,
     check_link_arguments,
-    network_link,
+    make_link,
 )
 from fake_marlin.emulator.link.pty import PtyLink
 from fake_marlin.emulator.link.tcp import TcpLink
 from fake_marlin.emulator.printer.model import DEFAULT_CAPABILITIES, Printer, PrinterConfig
 from fake_marlin.emulator.cli.farm import (
     MAX_PRINTERS,
-    Address,
     PrinterPlan,
     check_patterns,
     copies,
@@ -266,8 +265,7 @@ def _plans(parser: argparse.ArgumentParser, args: argparse.Namespace) -> list[Pr
         parser.error(f"argument --sd-dir: no directory {args.sd_dir}")
     base = PrinterPlan(
         1, setup, faults, args.link, args.journal, args.sd_dir,
-        tcp=Address(*args.tcp) if args.tcp else None,
-        rfc2217=Address(*args.rfc2217) if args.rfc2217 else None,
+        tcp=args.tcp, rfc2217=args.rfc2217,
     )
     return copies(base, args.printers)
 
@@ -280,13 +278,7 @@ class _Running:
         self.plan = plan
         self.journal = Journal.open(plan.journal)
         cleanup.callback(self.journal.close)
-        self.link: PtyLink | TcpLink
-        if plan.tcp:
-            self.link = network_link("tcp", plan.tcp.host, plan.tcp.port)
-        elif plan.rfc2217:
-            self.link = network_link("rfc2217", plan.rfc2217.host, plan.rfc2217.port)
-        else:
-            self.link = PtyLink()
+        self.link: PtyLink | TcpLink = make_link(plan.tcp, plan.rfc2217) or PtyLink()
         cleanup.callback(self.link.close)
         self.symlink = _Symlink(plan.link, self.link.path)
         self.symlink.create()
