@@ -55,7 +55,7 @@ class MarlinSession:
         self._before_command = before_command
         self.protocol = MarlinProtocol(advanced_ok)
         self._backlog: deque[LineReceived] = deque()  # received while a command waits
-        self._waiting: tuple[LineReceived, CommandRun, float] | None = None
+        self._waiting: tuple[LineReceived, Command, CommandRun, float] | None = None
         self._executor_idle = False  # until the executor task runs
         self._work = trio.Event()
         self._reports: tuple[object, ...] = ()
@@ -116,9 +116,9 @@ class MarlinSession:
         sd = self.printer.sd
         while not self.printer.halted:
             if self._waiting is not None:
-                received, run, until = self._waiting
+                received, command, run, until = self._waiting
                 self._waiting = None
-                await self._carry_on(received, run, until)
+                await self._carry_on(received, command, run, until)
             elif self._backlog:
                 received = self._backlog.popleft()
                 self._executor_idle = False
@@ -161,11 +161,12 @@ class MarlinSession:
             self._done(received, command, run.reply)
         else:
             self._executor_idle = False
-            self._waiting = (received, run, until)
+            self._waiting = (received, command, run, until)
             self._work.set()
 
-    async def _carry_on(self, received: LineReceived, run: CommandRun, until: float) -> None:
-        command = parse(received.text)
+    async def _carry_on(
+        self, received: LineReceived, command: Command, run: CommandRun, until: float
+    ) -> None:
         reply = await self._finish_waiting(command, run, until)
         if self.printer.halted:
             self.announce(reply.lines)
