@@ -46,8 +46,7 @@ class Pipe:
 
     def put(self, data: bytes, pause: float = 0.0) -> None:
         now = trio.current_time()
-        paced = bool(self.baud) or self._delays
-        if not self._queue and not pause and not paced and self._free_at <= now:
+        if not pause and self.passes_through and self._free_at <= now:
             self._deliver(data)
             return
         start = max(now + self.conditions.latency + self._random.uniform(0, self.conditions.jitter),
