@@ -19,10 +19,12 @@ from fake_marlin.emulator.journal.verify import job_commands, verify
 
 START_TIMEOUT = 60.0  # seconds for a printer to print its pty path (the machine may be loaded)
 RUN_TIMEOUT = 600.0  # seconds for one host run
-_VENV_MARKER = "fake-marlin-venv.json"  # written last by tests/hosts/venvs.py: the venv is whole
+VENV_MARKER = "fake-marlin-venv.json"  # written last by tests/hosts/venvs.py: the venv is whole
 
 
 def venv_cache() -> Path:
+    """Where the real hosts' venvs are cached, for the test suite (which builds them) and
+    the bench (which uses them)."""
     default = Path.home() / ".cache" / "fake-marlin" / "venvs"
     return Path(os.environ.get("FAKE_MARLIN_VENVS", default))
 
@@ -50,7 +52,7 @@ def _venv_host(key: str, label: str, venv: str, driver: str) -> Host:
     path = venv_cache() / venv
     python = path / "bin" / "python"
     script = Path(__file__).with_name(driver)
-    if not (path / _VENV_MARKER).is_file() or not python.exists():
+    if not (path / VENV_MARKER).is_file() or not python.exists():
         hint = "python -m tests.hosts.venvs in a checkout builds it"
         return Host(key, label, None, f"not installed (no venv {path}; {hint})")
     if not script.is_file():

@@ -7,7 +7,6 @@ project's own, and installing them takes a while, so each gets its own venv cach
 
 import fcntl
 import json
-import os
 import shutil
 import subprocess
 import sys
@@ -16,8 +15,10 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-CACHE = Path(os.environ.get("FAKE_MARLIN_VENVS", Path.home() / ".cache" / "fake-marlin" / "venvs"))
-MARKER = "fake-marlin-venv.json"
+from fake_marlin.emulator.bench.runs import VENV_MARKER, venv_cache
+
+CACHE = venv_cache()  # the bench looks for them there too
+MARKER = VENV_MARKER
 INSTALL_TIMEOUT = 1200
 
 
