@@ -203,6 +203,9 @@ class CharByChar(MarlinProtocol):
     def _numbered_in_order(self, command):
         return None
 
+    def _scan_for_emergencies(self, data):
+        self._scan_lines_for_emergencies(data)  # every line looked at, M or not
+
 
 @settings(max_examples=300)
 @given(st.lists(st.tuples(st.integers(-2, 4), st.text("G1 XYEF0123456789.-*() ;", max_size=30),
@@ -220,7 +223,8 @@ def test_the_usual_line_read_in_one_match_is_read_as_the_rules_read_it(lines):
 
 @settings(max_examples=300)
 @given(st.lists(st.binary(max_size=120) | st.sampled_from(
-    [b"N1 G1 X1*", b";", b"(", b")", b"\\", b"\x08", b"\n", b"\r", b"M112\n", b"x" * 100]
+    [b"N1 G1 X1*", b";", b"(", b")", b"\\", b"\x08", b"\n", b"\r", b"M112\n", b"x" * 100,
+     b"M", b"11", b"2", b"M108", b"N3 M410\r"]
 ), max_size=30))
 def test_reading_a_stretch_at_once_is_reading_it_char_by_char(chunks):
     fast, slow = MarlinProtocol(), CharByChar()

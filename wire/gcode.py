@@ -11,6 +11,8 @@ _PAREN_COMMENT = re.compile(r"\([^)]*\)")
 
 def strip_comment(line: str) -> str:
     """The command without `;` and `( )` comments or surrounding white space."""
+    if ";" not in line and "(" not in line:
+        return line.strip()  # the usual line: no regex to run
     return remove_paren_comments(line.split(";", 1)[0]).strip()
 
 

@@ -114,6 +114,16 @@ class MarlinProtocol:
 
     def _scan_for_emergencies(self, data: bytes) -> None:
         """The emergency parser sees every byte as it arrives, whole lines of them at a time."""
+        if b"M" not in data and b"M" not in self._emergency_line:
+            # No line here can be an emergency command (the usual G1): keep the unfinished tail.
+            last_end = max(data.rfind(b"\n"), data.rfind(b"\r"))
+            if last_end >= 0:
+                self._emergency_line.clear()
+            self._emergency_take(data[last_end + 1:])
+        else:
+            self._scan_lines_for_emergencies(data)
+
+    def _scan_lines_for_emergencies(self, data: bytes) -> None:
         start = 0
         for end in _LINE_END.finditer(data):
             self._emergency_take(data[start:end.start()])
