@@ -42,8 +42,15 @@ def test_quick_hosts_bench_reports_complete_runs_and_cleans_up(tmp_path):
     assert report["quick"] is True and list(report["sections"]) == ["hosts"]
     section = report["sections"]["hosts"]
     assert {"title", "rows", "notes", "seconds"} <= section.keys()
-    rows = {row["host"]: row for row in section["rows"]}
+    rows = {row["host"]: row for row in section["rows"]
+            if row.get("printer", "fake-marlin") == "fake-marlin"}
     assert {"ours-marlin", "octoprint", "printcore", "ours-ultimaker"} == rows.keys()
+    # Beside each host with a goal, the same host against the bare responder on trio: the floor.
+    floors = {row["host"]: row for row in section["rows"] if "bare_on_trio" in row}
+    assert "ours-marlin" in floors
+    for row in floors.values():
+        assert row["bare_on_trio"]["complete"] and row["bare"]["complete"]
+        assert row["bare_on_trio"]["acknowledged"] == report["moves"]
     for row in section["rows"]:
         assert ROW_KEYS <= row.keys()
     # Our hosts are always there; the others only where their venvs were built.
@@ -91,9 +98,10 @@ def test_a_bad_option_exits_2_in_one_line(tmp_path, args, complaint):
     assert done.stdout == ""
 
 
-def test_the_bare_responder_answers_ok_over_a_real_pty():
+@pytest.mark.parametrize("variant", [[], ["--trio"]], ids=["select", "trio"])
+def test_the_bare_responder_answers_ok_over_a_real_pty(variant):
     responder = subprocess.Popen(
-        [sys.executable, "-m", "fake_marlin.emulator.bench.responder"],
+        [sys.executable, "-m", "fake_marlin.emulator.bench.responder", *variant],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
     )
     try:

@@ -21,6 +21,7 @@ from fake_marlin.emulator.bench.procs import BenchError, Processes, fake_marlin
 from fake_marlin.emulator.bench.report import Row, Section, rate
 from fake_marlin.emulator.bench.runs import (
     BARE,
+    BARE_ON_TRIO,
     Host,
     Run,
     Target,
@@ -143,8 +144,11 @@ def hosts(bench: Bench) -> Section:
             host.label, _figure(emulated), _figure(bare), ratio,
             f"ratio ≥ {goal}" if goal else "—",
             None if goal is None else complete and ratio is not None and ratio >= goal,
-            {"host": host.key, "installed": True, "fake_marlin": emulated, "bare": bare},
+            {"host": host.key, "printer": "fake-marlin", "installed": True,
+             "fake_marlin": emulated, "bare": bare},
         ))
+        if host.key in HOST_GOALS:  # how near its goal any trio printer could come
+            section.rows.append(_trio_floor_row(bench, host, job, path))
     ultimaker = our_host("ultimaker")
     runs = [stream(bench.procs, ultimaker, printer("ultimaker", "--speed", SPEED), path, len(job))
             for _ in range(bench.options.rounds)]
@@ -163,6 +167,17 @@ def hosts(bench: Bench) -> Section:
                          "the same capabilities (no AUTOREPORT_TEMP), so each host does the "
                          "same work against both")
     return section
+
+
+def _trio_floor_row(bench: Bench, host: Host, job: list[str], path: Path) -> Row:
+    """The host against the bare responder on trio: how near 1 any trio printer can come."""
+    pair = bench.pair(host, BARE_ON_TRIO, BARE, job, path)
+    on_trio, bare = (_summary(runs) for runs in pair)
+    ratio = _paired_ratio(*([run.rate for run in runs] for runs in pair))
+    return Row(f"{host.label}, to the bare responder on trio", _figure(on_trio), _figure(bare),
+               ratio, "— (the floor)", None,
+               {"host": host.key, "printer": BARE_ON_TRIO.label, "installed": True,
+                "bare_on_trio": on_trio, "bare": bare})
 
 
 # -- 2. CPU per command ---------------------------------------------------------------------
@@ -184,6 +199,18 @@ def cpu(bench: Bench) -> Section:
                             ratio <= 2, data))
     section.rows.append(Row("fake-marlin, absolute", f"{mine:.1f} µs", "—", None,
                             "≤ 100 µs (unloaded machine)", mine <= 100, data))
+    floor = bench.pair(our_host("marlin"), BARE_ON_TRIO, BARE, job, path)
+    if all(run.complete and run.printer_cpu is not None for side in floor for run in side):
+        on_trio, plain = ([(run.printer_cpu or 0.0) / run.job * 1e6 for run in side]
+                          for side in floor)
+        section.rows.append(Row(
+            "bare responder on trio", f"{statistics.median(on_trio):.1f} µs",
+            f"{statistics.median(plain):.1f} µs", _paired_ratio(list(on_trio), list(plain)),
+            "— (the floor)", None,
+            {"trio_us": statistics.median(on_trio), "bare_us": statistics.median(plain)}))
+        section.notes.append("the bare responder on trio answers as the bare one does but waits "
+                             "for its pty as fake-marlin does (trio.lowlevel.wait_readable): "
+                             "what any printer on trio pays per command before it does anything")
     section.notes.append(f"the printer process's own CPU time (user + system, /proc) while the "
                          f"job ran, over the job's commands; load average "
                          f"{os.getloadavg()[0]:.2f} on {os.cpu_count()} CPUs")

@@ -1,6 +1,7 @@
 """The bare ok-responder: the least a Marlin printer on a pty can be, as the bench's reference.
 
     python -m fake_marlin.emulator.bench.responder      # prints its /dev/pts path, then serves
+    python -m fake_marlin.emulator.bench.responder --trio   # the same, waiting as trio waits
 
 Every line a host sends is answered at once with `ok`, so a host's throughput against it is
 what the host and the pty alone allow, and its CPU per command what a pty program cannot go
@@ -102,14 +103,7 @@ def serve(master: int, responder: Responder) -> None:
             packet = os.read(master, 65536)
         except BlockingIOError:
             continue
-        if not packet:
-            continue
-        if packet[0] == _TIOCPKT_DATA:
-            reply = responder.receive(packet[1:])
-        elif packet[0] & _TIOCPKT_FLUSHREAD:
-            reply = responder.reset()
-        else:
-            continue
+        reply = _answer_packet(responder, packet)
         if reply:
             try:
                 os.write(master, reply)
@@ -120,7 +114,49 @@ def serve(master: int, responder: Responder) -> None:
                     raise
 
 
-def main() -> int:
+def _answer_packet(responder: Responder, packet: bytes) -> bytes:
+    if packet and packet[0] == _TIOCPKT_DATA:
+        return responder.receive(packet[1:])
+    if packet and packet[0] & _TIOCPKT_FLUSHREAD:
+        return responder.reset()
+    return b""
+
+
+async def serve_on_trio(master: int, responder: Responder) -> None:
+    """The same loop on trio, as the emulator waits for its pty: what the least a trio program
+    pays per command (the scheduler's round, epoll's registration) costs beside `serve`."""
+    import trio  # only this variant needs it
+
+    while True:
+        await trio.lowlevel.wait_readable(master)
+        try:
+            reply = _answer_packet(responder, os.read(master, 65536))
+        except BlockingIOError:
+            continue
+        if reply:
+            try:
+                os.write(master, reply)
+            except OSError as error:
+                if error.errno not in (errno.EAGAIN, errno.EIO):
+                    raise
+
+
+async def _serve_on_trio_until_signalled(master: int) -> None:
+    import trio
+
+    with trio.open_signal_receiver(signal.SIGTERM, signal.SIGHUP, signal.SIGINT) as signals:
+        async with trio.open_nursery() as nursery:
+            nursery.start_soon(serve_on_trio, master, Responder())
+            async for _ in signals:
+                nursery.cancel_scope.cancel()
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = sys.argv[1:] if argv is None else argv
+    if args not in ([], ["--trio"]):
+        print("usage: python -m fake_marlin.emulator.bench.responder [--trio]", file=sys.stderr)
+        return 2
+    on_trio = args == ["--trio"]
     for signum in (signal.SIGTERM, signal.SIGHUP, signal.SIGINT):
         signal.signal(signum, _stop)
     master, slave = os.openpty()
@@ -131,7 +167,12 @@ def main() -> int:
         fcntl.ioctl(master, termios.TIOCPKT, struct.pack("i", 1))
         os.set_blocking(master, False)
         print(os.ttyname(slave), flush=True)
-        serve(master, Responder())
+        if on_trio:
+            import trio
+
+            trio.run(_serve_on_trio_until_signalled, master)
+        else:
+            serve(master, Responder())
     except (_Stop, KeyboardInterrupt):
         pass
     finally:

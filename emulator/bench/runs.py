@@ -83,6 +83,9 @@ def printer(protocol: str, *extra: str) -> Target:
 
 BARE = Target("bare responder",
               [sys.executable, "-m", "fake_marlin.emulator.bench.responder"])
+# The same responder waiting on trio, as the emulator does: the floor of any trio printer.
+BARE_ON_TRIO = Target("bare responder on trio",
+                      [sys.executable, "-m", "fake_marlin.emulator.bench.responder", "--trio"])
 
 
 @dataclass
