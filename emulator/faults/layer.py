@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 from enum import Enum
 
 from fake_marlin.emulator.faults.rules import FaultKind, FaultPlan, FaultRule, stream_random
-from fake_marlin.wire import commstack, repetier, stk500, ultimaker, undetected
+from fake_marlin.wire import commstack, marlin_binary, repetier, stk500, ultimaker, undetected
 from fake_marlin.wire.framing import Framer, split_units
 from fake_marlin.wire.lines import LINES
 
@@ -68,7 +68,7 @@ _LINE_ENDS = b"\r\n"
 # Each protocol's units: (toward the printer, toward the host). None: not known yet.
 FRAMERS: dict[str | None, tuple[Framer, Framer]] = {
     None: (undetected.TO_PRINTER_UNITS, LINES),
-    "marlin": (LINES, LINES),
+    "marlin": (marlin_binary.TO_PRINTER_UNITS, LINES),  # lines, and M28 B1's packets
     "ultimaker": (ultimaker.TO_PRINTER_UNITS, ultimaker.TO_HOST_UNITS),
     "repetier": (repetier.TO_PRINTER_UNITS, repetier.TO_HOST_UNITS),
     "commstack": (commstack.TO_PRINTER_UNITS, commstack.TO_HOST_UNITS),

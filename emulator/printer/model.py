@@ -22,7 +22,7 @@ __all__ = ["Printer", "PrinterConfig", "Reply", "Report", "Sleep", "Step"]
 
 DEFAULT_CAPABILITIES = (
     ("SERIAL_XON_XOFF", False),
-    ("BINARY_FILE_TRANSFER", False),
+    ("BINARY_FILE_TRANSFER", True),
     ("EEPROM", True),
     ("VOLUMETRIC", True),
     ("AUTOREPORT_POS", True),

@@ -55,6 +55,7 @@ class SdCard:
         self.selected: OpenFile | None = None
         self.printing = False
         self.saving: Path | None = None
+        self.binary_mode = False  # M28 B1 asked for the binary protocol (the session takes it)
 
     # -- the directory -----------------------------------------------------------------
     def entries(self) -> list[tuple[str, str, Path]]:
@@ -104,6 +105,37 @@ class SdCard:
             if command:
                 return command
         return None
+
+    def open_for_write(self, name: str) -> tuple[Path, str] | None:
+        """The file `name` created, or emptied, for writing (M28, a binary transfer's OPEN):
+        its path and the name `Writing to file:` shows; None if it cannot be."""
+        found = self.find(name)
+        path = found[1] if found else self.path_on_card(name)
+        if path is None:
+            return None
+        try:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            path.write_bytes(b"")
+        except OSError:
+            return None
+        return path, found[0] if found else name.strip()
+
+    def append(self, path: Path, data: bytes) -> bool:
+        try:
+            with open(path, "ab") as target:
+                target.write(data)
+        except OSError:
+            return False
+        return True
+
+    def remove(self, path: Path) -> str | None:
+        """Delete a file of the card; its 8.3 name, or None if it was not there."""
+        short = next((short for short, _, entry in self.entries() if entry == path), None)
+        try:
+            path.unlink()
+        except OSError:
+            return None
+        return short or path.name
 
     def write_line(self, text: str) -> None:
         if self.saving is None:
@@ -194,21 +226,23 @@ def report_status(printer, command: Command, now: float):
     return reply(printer.sd.status())
 
 
+_BINARY_FLAG = re.compile(r"B(\d) *")  # M28_M29.cpp: `B` and a digit first
+
+
 def begin_write(printer, command: Command, now: float):
     name = command.string_argument
+    if printer.config.capability("BINARY_FILE_TRANSFER") and (flag := _BINARY_FLAG.match(name)):
+        if flag[1] > "0":  # M28 B1: the session hands the line to the binary protocol
+            printer.sd.binary_mode = True
+            return reply("echo:Switching to Binary Protocol")
+        name = name[flag.end():]
     if _no_media(printer):
         return reply("echo:No media")
-    found = printer.sd.find(name)
-    path = found[1] if found else printer.sd.path_on_card(name)
-    if path is None:
+    opened = printer.sd.open_for_write(name)
+    if opened is None:
         return reply(f"open failed, File: {name}.")
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        path.write_bytes(b"")
-    except OSError:
-        return reply(f"open failed, File: {name}.")
-    printer.sd.saving = path
-    return reply(f"Writing to file: {found[0] if found else name.strip()}")
+    printer.sd.saving, shown = opened
+    return reply(f"Writing to file: {shown}")
 
 
 def end_write(printer, command: Command, now: float):

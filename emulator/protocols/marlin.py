@@ -271,6 +271,16 @@ class MarlinProtocol:
         self._output += f"Error:{error.value}{self.last_n}\nResend: {resend}\nok\n".encode("ascii")
         return LineRejected(error, resend)
 
+    def hand_over(self) -> bytes:
+        """The bytes not read yet, for the protocol that takes the line (M28 B1). A line half
+        read is dropped: the firmware's line buffer becomes the binary receiver's."""
+        data = bytes(self._input)
+        self._input.clear()
+        self._line.clear()
+        self._state = InputState.NORMAL
+        self._escaped = False
+        return data
+
     # -- sending -----------------------------------------------------------------------
     def send(self, event: Ok | Output) -> bytes:
         if isinstance(event, Ok):

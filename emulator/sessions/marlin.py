@@ -18,6 +18,7 @@ from fake_marlin.emulator.protocols.marlin import (
     Output,
 )
 from fake_marlin.emulator.sessions.driver import CommandRun, finish, hold_queue_full
+from fake_marlin.emulator.sessions.marlin_binary import BinaryTransfer
 
 BUSY_INTERVAL = 2.0  # HOST_KEEPALIVE default; M113 changes it
 
@@ -63,6 +64,7 @@ class MarlinSession:
         self._busy = False
         self._busy_changed = trio.Event()
         self._reports_changed = trio.Event()
+        self._binary = BinaryTransfer(printer, send, self._say)  # M28 B1's file transfer
 
     def boot(self) -> None:
         for line in boot_lines(self.printer, self.reset_reason):
@@ -83,6 +85,10 @@ class MarlinSession:
     def feed(self, data: bytes) -> None:
         if self.printer.halted:
             return  # a killed printer reads nothing until it is reset
+        if self._binary.active:
+            data = self._binary.feed(data)  # what follows is ASCII again, if anything
+            if self._binary.active or not data:
+                return
         self.protocol.receive_data(data)
         while (event := self.protocol.next_event()) is not None:
             if isinstance(event, LineReceived):
@@ -97,6 +103,8 @@ class MarlinSession:
                     self._wake()
                     break
         self._send(self.protocol.data_to_send())
+        if self._binary.active:
+            self.feed(b"")  # what came with M28 B1 is the binary protocol's
 
     def _wake(self) -> None:
         self._busy_changed.set()
@@ -108,6 +116,7 @@ class MarlinSession:
             nursery.start_soon(self._execute_commands)
             nursery.start_soon(self._keep_host_alive)
             nursery.start_soon(self._send_auto_reports)
+            nursery.start_soon(self._binary.run)
 
     # -- executing ---------------------------------------------------------------------
     # A command runs where it arrives (in feed) until it has to wait for time; then this task
@@ -208,7 +217,7 @@ class MarlinSession:
         return (reports.temperature, reports.position, reports.sd_status, sd.selected, sd.printing)
 
     def _protocol_effects(self, command: Command) -> None:
-        """M110, M113 and M999 act on the protocol, not on the printer."""
+        """M110, M113, M999 and M28 B1 act on the protocol, not on the printer."""
         if command.code == "M110" and (number := command.value("N")) is not None:
             self.protocol.last_n = int(number)
         elif command.code == "M113" and command.has("S"):
@@ -217,6 +226,9 @@ class MarlinSession:
             self._say(f"echo:M113 S{self.busy_interval:g}")
         elif command.code == "M999":
             self._say(f"Resend: {self.protocol.last_n + 1}")
+        elif command.code == "M28" and self.printer.sd.binary_mode:
+            self.printer.sd.binary_mode = False
+            self._binary.enter(self.protocol.hand_over())  # read once its `ok` is out
 
     def _room(self) -> int:
         if not self.protocol.advanced_ok:

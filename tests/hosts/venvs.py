@@ -33,6 +33,9 @@ class Host:
 OCTOPRINT = Host("octoprint", "1.11", ("octoprint>=1.11,<1.12",), "octoprint.util.comm")
 # The full Printrun install wants wxPython and dbus, which do not build here; printcore needs neither.
 PRINTRUN = Host("printrun", "2.2.0", ("--no-deps", "printrun==2.2.0", "pyserial"), "printrun.printcore")
+# Marlin's binary transfer client; it also requires `heatshrink`, which it only falls back from.
+BINPROTO = Host("binproto", "0.0.7", (
+    "--no-deps", "marlin-binary-protocol==0.0.7", "heatshrink2==0.15.0", "pyserial"), "binproto2")
 
 
 class VenvError(RuntimeError):
