@@ -1,13 +1,26 @@
 """The Arduino Mega's STK500v2 bootloader that answers first in `--protocol auto`; its hand-over."""
 
+import random
+import subprocess
+import sys
+
 import pytest
 import serial
 import trio
 from hypothesis import given
 from hypothesis import strategies as st
 
+from fake_marlin.emulator.protocols.avr_memory import (
+    BOOT_SECTION,
+    EEPROM_SIZE,
+    FLASH_SIZE,
+    PAGE_SIZE,
+    BoardMemory,
+)
 from fake_marlin.emulator.protocols.stk500 import (
     MAX_BODY,
+    MAX_READ,
+    Bootloader,
     LeftBootloader,
     MessageReceived,
     Reply,
@@ -15,8 +28,10 @@ from fake_marlin.emulator.protocols.stk500 import (
     answer,
     encode_message,
 )
+from fake_marlin.emulator.server.flash_file import FlashFile, FlashFileError
 from fake_marlin.emulator.server.lifecycle import ServerConfig
-from fake_marlin.emulator.sessions.stk500 import BYTE_TIMEOUT
+from fake_marlin.emulator.sessions.stk500 import BYTE_TIMEOUT, Stk500Session
+from fake_marlin.wire.stk500 import MAX_MESSAGE
 from fake_marlin.wire.ultimaker import encode_packet
 from tests.conftest import running_printer
 from tests.terminal import Terminal, numbered
@@ -79,7 +94,14 @@ def test_the_reference_vectors(seq, body, message, reply):
         (b"\x1d\x04\x04\x00\xa0\x00\x00\x00", b"\x1d\x00\x00\xa0\x00\x00\x00"),  # other reads: 0
         (b"\x1b\x04\x30\x00\x01\x00", b"\x1b\x00\x98\x00"),  # READ_SIGNATURE_ISP
         (b"\xee", b"\xee\xc0"),  # Cura's question for a flash checksum command
-        (b"\x13\x00\x02\xc1\x0a\x40\x4c\x20\x00\x00\xff\xff", b"\x13\xc0"),  # no flash to program
+        (b"\x13\x00\x02\xc1\x0a\x40\x4c\x20\x00\x00\xff\xff", b"\x13\x00"),  # a word of flash
+        (b"\x14\x00\x04\x20", b"\x14\x00\xff\xff\xff\xff\x00"),  # READ_FLASH: erased
+        (b"\x16\x00\x02\xa0", b"\x16\x00\xff\xff\x00"),  # READ_EEPROM: erased
+        (b"\x1a\x00\x58\x00\x00\x00", b"\x1a\x00\xcf\x00"),  # READ_LOCK: 0x0F as burnt
+        (b"\x18\x00\x50\x00\x00\x00", b"\x18\x00\xff\x00"),  # READ_FUSE: low
+        (b"\x18\x00\x58\x08\x00\x00", b"\x18\x00\xd8\x00"),  # high
+        (b"\x18\x00\x50\x08\x00\x00", b"\x18\x00\xfd\x00"),  # extended
+        (b"\x17\x00\xac\xa0\x00\xff", b"\x17\xc0"),  # PROGRAM_FUSE: not from a bootloader
         (b"\x1d", b"\x1d\x00\x00\x00\x00\x00\x00"),  # arguments a short message lacks read as 0
     ],
 )
@@ -168,6 +190,211 @@ def test_encoded_messages_parse_back_whatever_the_chunking(messages, garbage, ch
     for at in range(0, len(wire), chunk_size):
         events += feed(protocol, wire[at:at + chunk_size])
     assert events == [MessageReceived(seq, body) for seq, body in messages]
+
+
+# -- flashing: the bootloader over the board's memories (as stk500boot.c does it) -------------
+OLD_FLASH = random.Random(2560).randbytes(FLASH_SIZE)  # what an earlier firmware left
+
+
+def load(word_address: int, extended: bool = True) -> bytes:
+    """LOAD_ADDRESS as avrdude sends it: bit 31 set for flash on a chip past 64 KiB."""
+    return b"\x06" + (word_address | (extended << 31)).to_bytes(4, "big")
+
+
+def program_flash(data: bytes) -> bytes:
+    return b"\x13" + len(data).to_bytes(2, "big") + b"\xc1\x0a\x40\x4c\x20\x00\x00" + data
+
+
+def read_flash(size: int) -> bytes:
+    return b"\x14" + size.to_bytes(2, "big") + b"\x20"
+
+
+def program_eeprom(data: bytes) -> bytes:
+    return b"\x15" + len(data).to_bytes(2, "big") + b"\xc1\x0a\xc1\xc2\xa0\x00\x00" + data
+
+
+def read_eeprom(size: int) -> bytes:
+    return b"\x16" + size.to_bytes(2, "big") + b"\xa0"
+
+
+def read_reply(command: int, data: bytes) -> bytes:
+    return bytes((command, 0x00)) + data + b"\x00"
+
+
+def fresh(flash: bytes | None = None) -> Bootloader:
+    """A bootloader just reset, on a board holding `flash` (default: erased)."""
+    return Bootloader(BoardMemory(flash))
+
+
+@pytest.mark.parametrize(
+    "arguments, address",
+    [
+        (b"\x80\x00\x00\x00", 0x00000),
+        (b"\x00\x00\x00\x01", 0x00002),  # a word address: the byte address is twice it
+        (b"\x80\x00\x80\x00", 0x10000),  # past 64 KiB
+        (b"\x80\x01\x00\x00", 0x20000),  # past 128 KiB: a word address past 0xFFFF
+        (b"\x80\x01\xff\x80", 0x3FF00),  # the last page
+        (b"\xff\xff\xff\xff", 0xFFFFFFFE),  # doubled in 32 bits: bit 31 drops out
+        (b"\x00\x00", 0x00000),  # arguments a short message lacks read as 0
+    ],
+)
+def test_load_address_doubles_the_word_address_in_32_bits(arguments, address):
+    bootloader = fresh()
+    assert bootloader.answer(b"\x06" + arguments) == b"\x06\x00"
+    assert bootloader.address == address
+
+
+@given(st.integers(0, FLASH_SIZE // 2 - 1), st.booleans(), st.integers(1, MAX_READ // 2))
+def test_reads_come_from_the_doubled_address_and_move_on_past_what_they_read(word, extended, words):
+    bootloader, size = fresh(OLD_FLASH), 2 * words
+    bootloader.answer(load(word, extended))
+    expected = bytes(OLD_FLASH[(2 * word + i) % FLASH_SIZE] for i in range(2 * size))
+    assert bootloader.answer(read_flash(size)) == read_reply(0x14, expected[:size])
+    assert bootloader.answer(read_flash(size)) == read_reply(0x14, expected[size:])
+
+
+@given(
+    st.lists(st.binary(min_size=PAGE_SIZE, max_size=PAGE_SIZE), min_size=1, max_size=6),
+    st.booleans(),
+)
+def test_pages_written_in_order_from_the_start_hold_them_over_any_old_flash(pages, load_each):
+    """avrdude's flash write: each page erased by the count just before it is written."""
+    bootloader = fresh(OLD_FLASH)
+    bootloader.answer(load(0))
+    for number, page in enumerate(pages):
+        if load_each:  # avrdude loads each page's address; the board also counts on by itself
+            assert bootloader.answer(load(number * PAGE_SIZE // 2)) == b"\x06\x00"
+        assert bootloader.answer(program_flash(page)) == b"\x13\x00"
+    written = b"".join(pages)
+    assert bootloader.memory.flash == written + OLD_FLASH[len(written):]
+    assert bootloader.memory.take_changed_pages() == list(range(len(pages)))
+
+
+def test_a_page_written_out_of_turn_is_not_erased_first_and_the_turns_page_is():
+    """stk500boot.c erases the next page of its count, whatever page it writes: a page not
+    written in turn keeps the bits its old content had at 0 (its flash cells only lose charge)."""
+    bootloader, data = fresh(OLD_FLASH), bytes(range(256))
+    bootloader.answer(load(0x1000 // 2))
+    bootloader.answer(program_flash(data))
+    flash = bootloader.memory.flash
+    assert flash[:PAGE_SIZE] == b"\xff" * PAGE_SIZE
+    old = OLD_FLASH[0x1000:0x1100]
+    assert flash[0x1000:0x1100] == bytes(a & b for a, b in zip(old, data))
+
+
+def test_chip_erase_fails_but_starts_the_erase_count_again():
+    bootloader = fresh()
+    for page in (b"\x00" * PAGE_SIZE, b"\x0f" * PAGE_SIZE):
+        bootloader.answer(load(0))
+        bootloader.answer(program_flash(page))  # the second is page 0 unerased: 0x00 stays
+    assert bootloader.memory.flash[:PAGE_SIZE] == b"\x00" * PAGE_SIZE
+    assert bootloader.answer(b"\x12\x00\x00\xac\x80\x00\x00") == b"\x12\xc0"
+    bootloader.answer(load(0))
+    bootloader.answer(program_flash(b"\x0f" * PAGE_SIZE))
+    assert bootloader.memory.flash[:PAGE_SIZE] == b"\x0f" * PAGE_SIZE
+
+
+def test_a_write_from_mid_page_wraps_to_that_pages_start():
+    """The page buffer is indexed by the address within the page and written to one page."""
+    bootloader, data = fresh(), bytes(range(256))
+    bootloader.answer(load((PAGE_SIZE + 0x80) // 2))
+    bootloader.answer(program_flash(data))
+    assert bootloader.memory.flash[PAGE_SIZE:2 * PAGE_SIZE] == data[0x80:] + data[:0x80]
+    assert bootloader.address == 2 * PAGE_SIZE + 0x80
+
+
+def test_a_short_write_leaves_the_rest_of_its_page_as_it_was():
+    bootloader = fresh()
+    bootloader.answer(load(0x102 // 2))
+    bootloader.answer(program_flash(b"\x12\x34"))
+    flash = bootloader.memory.flash
+    assert flash[0x100:0x108] == b"\xff\xff\x12\x34\xff\xff\xff\xff"
+    # The next word, at the address kept; but the count's second erase is this very page.
+    bootloader.answer(program_flash(b"\x56\x78"))
+    assert flash[0x100:0x108] == b"\xff\xff\xff\xff\x56\x78\xff\xff"
+
+
+def test_the_bootloaders_own_section_cannot_be_written():
+    bootloader = fresh()
+    bootloader.answer(load(BOOT_SECTION // 2))
+    assert bootloader.answer(program_flash(b"\x00" * PAGE_SIZE)) == b"\x13\x00"  # it says OK
+    assert bootloader.memory.flash[BOOT_SECTION:] == b"\xff" * (FLASH_SIZE - BOOT_SECTION)
+    assert bootloader.memory.take_changed_pages() == [0]  # only the count's erase of page 0
+
+
+def test_lock_bits_once_programmed_forbid_writing_the_application():
+    bootloader = fresh()
+    assert bootloader.answer(b"\x1a\x00\x58\x00\x00\x00") == b"\x1a\x00\xcf\x00"
+    # avrdude's lock write of 0xCB: BLB01 programmed, so SPM may not write the application.
+    assert bootloader.answer(b"\x19\xac\xe0\x00\xcb") == b"\x19\x00\x00"
+    assert bootloader.answer(b"\x1a\x00\x58\x00\x00\x00") == b"\x1a\x00\xcb\x00"
+    bootloader.answer(load(0))
+    assert bootloader.answer(program_flash(b"\x00" * PAGE_SIZE)) == b"\x13\x00"
+    assert bootloader.memory.flash[:PAGE_SIZE] == b"\xff" * PAGE_SIZE
+    bootloader.answer(b"\x19\xac\xe0\x00\xff")  # a lock bit once programmed stays so
+    assert bootloader.answer(b"\x1a\x00\x58\x00\x00\x00") == b"\x1a\x00\xcb\x00"
+
+
+@pytest.mark.parametrize(
+    "body",
+    [
+        program_flash(b""),  # the board's do-while writes a word, then loops for ever
+        program_flash(b"\x00" * 3),  # an odd size: the same
+        program_flash(b"\x00" * (PAGE_SIZE + 2)),  # more than its page buffer holds
+        program_flash(b"\x00" * 8)[:-2],  # a size the message does not carry
+        program_eeprom(b"\x00" * 8)[:-1],
+        read_flash(0),
+        read_flash(7),
+        read_flash(MAX_READ + 2),  # a reply longer than its buffer
+        read_eeprom(0),
+        read_eeprom(MAX_READ + 1),
+    ],
+)
+def test_sizes_the_board_cannot_take_fail_and_change_nothing(body):
+    bootloader = fresh(OLD_FLASH)
+    bootloader.answer(load(0x40))
+    assert bootloader.answer(body) == bytes((body[0], 0xC0))
+    assert bootloader.memory.flash == OLD_FLASH
+    assert bootloader.memory.eeprom == b"\xff" * EEPROM_SIZE
+    assert bootloader.address == 0x80
+
+
+def test_the_largest_read_fits_the_buffer_and_reads_wrap_at_the_end_of_the_flash():
+    bootloader = fresh(OLD_FLASH)
+    bootloader.answer(load(FLASH_SIZE // 2 - 2))
+    reply = bootloader.answer(read_flash(MAX_READ))
+    assert reply == read_reply(0x14, OLD_FLASH[-4:] + OLD_FLASH[:MAX_READ - 4])
+    assert len(encode_message(1, reply)) <= MAX_MESSAGE
+
+
+@given(st.integers(0, 0xFFFF), st.binary(max_size=MAX_BODY - 10))
+def test_eeprom_writes_go_to_the_byte_address_load_gave(address, data):
+    bootloader = fresh()
+    bootloader.answer(load(address, extended=False))
+    assert bootloader.answer(program_eeprom(data)) == b"\x15\x00"
+    expected = bytearray(b"\xff" * EEPROM_SIZE)
+    for i, value in enumerate(data):
+        expected[(address + i) % EEPROM_SIZE] = value
+    assert bootloader.memory.eeprom == expected
+
+
+@pytest.mark.parametrize(
+    "address, size, start",
+    [
+        (0, 8, 0),  # avrdude's first block reads back right
+        (8, 8, 16),  # its next ones come from twice their address (ArduinoCore-avr issue 129)
+        (16, 8, 32),
+        (0, 256, 0),  # one read runs on byte by byte
+        (0x900, 4, 0x200),  # the 12-bit EEPROM address wraps
+    ],
+)
+def test_eeprom_reads_come_from_the_doubled_address_as_on_the_board(address, size, start):
+    bootloader = fresh()
+    contents = random.Random(address).randbytes(EEPROM_SIZE)
+    bootloader.memory.eeprom[:] = contents
+    bootloader.answer(load(address, extended=False))
+    expected = bytes(contents[(start + i) % EEPROM_SIZE] for i in range(size))
+    assert bootloader.answer(read_eeprom(size)) == read_reply(0x16, expected)
 
 
 # -- a printer on an in-memory link ----------------------------------------------------------
@@ -291,6 +518,90 @@ async def test_a_bad_checksum_gets_no_reply_from_the_printer_either(autojump_clo
             pytest.fail(f"the printer answered a damaged message: {unexpected!r}")
         programmer = Programmer(host)
         assert await programmer.body(SIGN_ON) == b"\x01\x00\x08AVRISP_2"
+
+
+async def test_the_flash_outlives_resets_it_is_the_boards(autojump_clock):
+    page = bytes(range(256))
+    async with running_printer(ServerConfig(protocol="auto")) as running:
+        programmer = Programmer(running.link.open_host())
+        assert await programmer.body(ENTER) == b"\x10\x00"
+        assert await programmer.body(load(0x8000)) == b"\x06\x00"  # 64 KiB in
+        assert await programmer.body(program_flash(page)) == b"\x13\x00"
+        assert await programmer.body(LEAVE) == b"\x11\x00"
+        again = Programmer(running.link.open_host())  # a reopen resets the board
+        assert await again.body(load(0x8000)) == b"\x06\x00"
+        assert await again.body(read_flash(256)) == read_reply(0x14, page)
+        assert running.server.memory.flash[0x10000:0x10100] == page
+        assert running.server.boots == 3  # power-up, then a reset at each open
+
+
+async def test_a_page_cut_off_by_a_reset_is_lost_and_the_pages_before_it_kept(autojump_clock):
+    pages = [bytes((n,)) * PAGE_SIZE for n in range(3)]
+    async with running_printer(ServerConfig(protocol="auto")) as running:
+        programmer = Programmer(running.link.open_host())
+        await programmer.body(ENTER)
+        for page in pages[:2]:
+            assert await programmer.body(program_flash(page)) == b"\x13\x00"
+        await programmer.stream.send_all(encode_message(9, program_flash(pages[2]))[:100])
+        terminal = Terminal(running.link.open_host())  # avrdude killed; a host opens the port
+        lines = await terminal.command("M105")
+        assert lines[0] == "start" and lines[-1] == f"ok {TEMPERATURES}"
+        flash = running.server.memory.flash
+        assert flash[:3 * PAGE_SIZE] == pages[0] + pages[1] + b"\xff" * PAGE_SIZE
+
+
+def test_the_flash_is_saved_before_the_host_hears_it_was_written():
+    events: list[object] = []
+    memory = BoardMemory()
+
+    def save() -> None:
+        events.append(("saved", memory.take_changed_pages()))
+
+    session = Stk500Session(events.append, lambda: pytest.fail("no LEAVE was sent"), memory, save)
+    session.feed(encode_message(1, load(0)) + encode_message(2, program_flash(b"\x00" * 256)))
+    assert events == [
+        encode_message(1, b"\x06\x00"), ("saved", [0]), encode_message(2, b"\x13\x00")
+    ]
+
+
+# -- --flash-file -----------------------------------------------------------------------------
+def test_a_missing_flash_file_is_made_erased_and_pages_go_to_it_in_place(tmp_path):
+    path = tmp_path / "mega.bin"
+    flash = FlashFile.open(path)
+    assert path.read_bytes() == b"\xff" * FLASH_SIZE
+    flash.memory.erase_page(0x20100)
+    flash.memory.write_page(0x20100, bytes(range(256)))
+    flash.save()
+    expected = bytearray(b"\xff" * FLASH_SIZE)
+    expected[0x20100:0x20200] = bytes(range(256))
+    assert path.read_bytes() == expected  # on disk before close: a kill loses nothing
+    flash.close()
+    assert FlashFile.open(path).memory.flash == expected
+
+
+@pytest.mark.e2e
+@pytest.mark.parametrize(
+    "make, args, message",
+    [
+        (lambda path: path.write_bytes(b"\xff" * 1000), [], "1000 bytes, but an ATmega2560's"),
+        (lambda path: path.mkdir(), [], "Is a directory"),
+        (lambda path: None, ["--printers", "2"], "with --printers, put {n} in it"),
+    ],
+)
+def test_a_flash_file_that_cannot_be_used_is_a_clear_error(tmp_path, make, args, message):
+    path = tmp_path / "mega.bin"
+    make(path)
+    done = subprocess.run(
+        [sys.executable, "-m", "fake_marlin.emulator.cli", "--flash-file", str(path), *args],
+        capture_output=True, text=True, timeout=60,
+    )
+    assert done.returncode == 2 and message in done.stderr, done.stderr
+    assert "Traceback" not in done.stderr and done.stdout == ""
+
+
+def test_a_flash_file_in_a_missing_directory_is_a_clear_error(tmp_path):
+    with pytest.raises(FlashFileError, match="No such file or directory"):
+        FlashFile.open(tmp_path / "gone" / "mega.bin")
 
 
 # -- the real program over a real pty (fake_printer: fake-marlin with its defaults) ----------

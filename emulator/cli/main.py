@@ -30,10 +30,12 @@ from fake_marlin.emulator.cli.farm import (
     check_patterns,
     copies,
     load_farm,
+    numbered,
 )
 from fake_marlin.emulator.scenario.definition import PrinterSetup, ScenarioError, add_fault_table
 from fake_marlin.emulator.scenario.definition import load as load_scenario
 from fake_marlin.emulator.server.clock import ScaledClock
+from fake_marlin.emulator.server.flash_file import FlashFile, FlashFileError
 from fake_marlin.emulator.server.lifecycle import PROTOCOLS, PrinterServer
 
 
@@ -131,6 +133,12 @@ def build_parser() -> argparse.ArgumentParser:
         "--sd-dir", metavar="DIR",
         help="directory that backs the SD card (default: a temporary one, removed at exit; "
         "with --printers, a pattern with {n}, made if missing)",
+    )
+    parser.add_argument(
+        "--flash-file", metavar="FILE",
+        help="keep the board's 256 KiB flash (what avrdude writes through the bootloader) in "
+        "FILE across runs, created erased if missing (default: in memory, erased at start; with "
+        "--printers, a pattern with {n}; see docs/bootloader.md)",
     )
     parser.add_argument(
         "--advanced-ok", action="store_true", help="Marlin's ADVANCED_OK: `ok N.. P.. B..`"
@@ -274,8 +282,11 @@ class _Running:
     """One printer of this process and what it holds open: its link, symlink, journal, card."""
 
     def __init__(self, plan: PrinterPlan, capabilities: dict[str, bool], in_farm: bool,
-                 cleanup: contextlib.ExitStack) -> None:
+                 cleanup: contextlib.ExitStack, flash_file: str | None = None) -> None:
         self.plan = plan
+        flash = FlashFile.open(flash_file) if flash_file else None
+        if flash is not None:
+            cleanup.callback(flash.close)
         self.journal = Journal.open(plan.journal)
         cleanup.callback(self.journal.close)
         self.link: PtyLink | TcpLink = make_link(plan.tcp, plan.rfc2217) or PtyLink()
@@ -299,7 +310,8 @@ class _Running:
             extruders=plan.setup.extruders, sd_dir=sd_dir, capabilities=tuple(capabilities.items())
         )
         self.server = PrinterServer(
-            self.link, Printer(config), self.journal, plan.setup.server_config(plan.faults)
+            self.link, Printer(config), self.journal, plan.setup.server_config(plan.faults),
+            memory=flash.memory if flash else None, flash_changed=flash.save if flash else None,
         )
 
 
@@ -322,6 +334,10 @@ def main(argv: list[str] | None = None) -> int:
         check_patterns(plans)
     except ScenarioError as error:
         parser.error(str(error))
+    if args.flash_file and (args.farm or len(plans) > 1 and "{n}" not in args.flash_file):
+        parser.error("argument --flash-file: " + (
+            "not with --farm: a farm's printers keep their flash in memory" if args.farm else
+            "with --printers, put {n} in it (the printer's number, from 1)"))
     if args.control and (problem := check_control_path(args.control)):
         parser.error(f"argument --control: {problem}")
     # Until trio takes over the signals (and in case one lands before it does), a SIGTERM or
@@ -334,8 +350,9 @@ def main(argv: list[str] | None = None) -> int:
         printers = []
         for plan in plans:
             try:
-                printers.append(_Running(plan, capabilities, len(plans) > 1, cleanup))
-            except LinkError as error:
+                printers.append(_Running(plan, capabilities, len(plans) > 1, cleanup,
+                                         numbered(args.flash_file, plan.number)))
+            except (LinkError, FlashFileError) as error:
                 print(f"fake-marlin: {error}", file=sys.stderr)
                 return 2
             except OSError as error:

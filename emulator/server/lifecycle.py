@@ -1,6 +1,6 @@
 """The printer's life on a link: power on, boot, and reboot whenever a host opens the port."""
 
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 
 import trio
@@ -12,6 +12,7 @@ from fake_marlin.emulator.link.base import HostOpened, Link
 from fake_marlin.emulator.link.conditions import LinkConditions, Pipe
 from fake_marlin.emulator.printer import failures
 from fake_marlin.emulator.printer.model import Printer
+from fake_marlin.emulator.protocols.avr_memory import BoardMemory
 from fake_marlin.emulator.sessions.base import Session
 from fake_marlin.emulator.sessions.commstack import CommStackSession
 from fake_marlin.emulator.sessions.detect import DetectingSession
@@ -35,9 +36,16 @@ class ServerConfig:
 
 
 class PrinterServer:
-    def __init__(self, link: Link, printer: Printer, journal: Journal, config: ServerConfig) -> None:
+    def __init__(
+        self, link: Link, printer: Printer, journal: Journal, config: ServerConfig,
+        memory: BoardMemory | None = None, flash_changed: Callable[[], None] | None = None,
+    ) -> None:
         self.link = link
         self.printer = printer
+        # The board's flash and EEPROM outlive every reset, as the printer does; the bootloader
+        # calls flash_changed (--flash-file's save) when it has written flash.
+        self.memory = memory if memory is not None else BoardMemory()
+        self._flash_changed = flash_changed or (lambda: None)
         self.journal = journal
         self.config = config
         self.boots = 0
@@ -123,7 +131,8 @@ class PrinterServer:
         if protocol == "stk500":
             # LEAVE starts the firmware, whose protocol the bytes after it choose.
             return Stk500Session(
-                self._send, lambda: self._detecting_session(reason, bootloader=False)
+                self._send, lambda: self._detecting_session(reason, bootloader=False),
+                self.memory, self._flash_changed,
             )
         if protocol == "marlin":
             return MarlinSession(

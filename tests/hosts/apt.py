@@ -1,0 +1,72 @@
+"""Debian packages that tests run (avrdude), installed on demand with the machine's apt.
+
+The machines this project runs on are root with apt-get; a package that is missing is installed
+once, under a flock so that pytest processes starting together do not race for dpkg's lock, and
+apt itself keeps it installed for later runs. Where apt cannot be used at all (no apt-get, not
+root) the caller skips with AptUnavailable's reason; an install that apt tried and failed is a
+real failure (AptInstallFailed), not a skip.
+"""
+
+import fcntl
+import functools
+import os
+import shutil
+import subprocess
+from pathlib import Path
+
+LOCK = Path.home() / ".cache" / "fake-marlin" / "apt.lock"
+TIMEOUT = 900  # seconds for one apt-get run: an update of the lists, then the download
+# apt-get waits for a dpkg lock held by another apt (not ours) instead of failing at once.
+APT_GET = ("apt-get", "-y", "-q", "--no-install-recommends", "-o", "DPkg::Lock::Timeout=300")
+
+
+class AptUnavailable(RuntimeError):
+    """apt cannot install anything here: the test that needs the package is skipped."""
+
+
+class AptInstallFailed(RuntimeError):
+    """apt was there but the install did not work: the test fails with apt's words."""
+
+
+@functools.cache
+def ensure_apt_package(package: str, binary: str) -> str:
+    """The path of `binary`, after installing the Debian `package` that has it if it is missing."""
+    if (found := shutil.which(binary)) is not None:
+        return found
+    if shutil.which("apt-get") is None:
+        raise AptUnavailable(f"{binary} is not installed and this machine has no apt-get")
+    if os.geteuid() != 0:
+        raise AptUnavailable(f"{binary} is not installed, and only root may apt-get install it")
+    LOCK.parent.mkdir(parents=True, exist_ok=True)
+    with open(LOCK, "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        if (found := shutil.which(binary)) is None:
+            # The package lists may be missing or stale on a fresh machine: update, then retry.
+            if _apt_get("install", package) is not None:
+                _apt_get("update", check=True)
+                _apt_get("install", package, check=True)
+            found = shutil.which(binary)
+    if found is None:
+        raise AptInstallFailed(f"apt-get installed {package}, but it has no {binary} on PATH")
+    return found
+
+
+def _apt_get(*args: str, check: bool = False) -> str | None:
+    """None when apt-get succeeded, else what it said (raised as AptInstallFailed with check)."""
+    command = [*APT_GET, *args]
+    environment = {**os.environ, "DEBIAN_FRONTEND": "noninteractive"}
+    try:
+        done = subprocess.run(
+            command, capture_output=True, text=True, timeout=TIMEOUT, env=environment,
+            stdin=subprocess.DEVNULL,
+        )
+        failure = None if done.returncode == 0 else (
+            f"exit {done.returncode}:\n" + "\n".join(
+                (done.stdout + done.stderr).strip().splitlines()[-15:]
+            )
+        )
+    except subprocess.TimeoutExpired:
+        failure = f"no result after {TIMEOUT} s"
+    if failure is not None and check:
+        raise AptInstallFailed(f"{' '.join(command)} failed ({failure})")
+    return failure
