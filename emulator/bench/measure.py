@@ -199,6 +199,7 @@ def cpu(bench: Bench) -> Section:
                             ratio <= 2, data))
     section.rows.append(Row("fake-marlin, absolute", f"{mine:.1f} µs", "—", None,
                             "≤ 100 µs (unloaded machine)", mine <= 100, data))
+    section.rows.append(_trace_row(bench, job, path))
     floor = bench.pair(our_host("marlin"), BARE_ON_TRIO, BARE, job, path)
     if all(run.complete and run.printer_cpu is not None for side in floor for run in side):
         on_trio, plain = ([(run.printer_cpu or 0.0) / run.job * 1e6 for run in side]
@@ -215,6 +216,28 @@ def cpu(bench: Bench) -> Section:
                          f"job ran, over the job's commands; load average "
                          f"{os.getloadavg()[0]:.2f} on {os.cpu_count()} CPUs")
     return section
+
+
+def _trace_row(bench: Bench, job: list[str], path: Path) -> Row:
+    """What writing a trace costs the printer: the same job, traced and not, side by side."""
+    trace = bench.workdir / "bench.trace.jsonl"
+    plain = printer("marlin", "--speed", SPEED)
+    traced = Target(f"{plain.label} --trace", [*plain.argv, "--trace", str(trace)])
+    runs = bench.pair(our_host("marlin"), traced, plain, job, path)
+    if not all(run.complete and run.printer_cpu is not None for side in runs for run in side):
+        return Row("fake-marlin --trace FILE", "not measured: a run was incomplete")
+    with_trace, without = ([(run.printer_cpu or 0.0) / run.job * 1e6 for run in side]
+                           for side in runs)
+    speed = _paired_ratio(*([run.rate for run in side] for side in runs))
+    size = trace.stat().st_size * 1000 / len(job) if trace.exists() else None
+    return Row(
+        "fake-marlin --trace FILE", f"{statistics.median(with_trace):.1f} µs",
+        f"{statistics.median(without):.1f} µs untraced",
+        _paired_ratio(list(with_trace), list(without)),
+        f"— (host speed {speed:.2f} of untraced; {size / 1000:.0f} KB per 1,000 commands)"
+        if speed is not None and size is not None else "—", None,
+        {"traced_us": statistics.median(with_trace), "untraced_us": statistics.median(without),
+         "host_speed_ratio": speed, "bytes_per_1000_commands": size})
 
 
 # -- 3. paced at 250000 baud ------------------------------------------------------------------

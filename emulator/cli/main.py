@@ -36,6 +36,7 @@ from fake_marlin.emulator.scenario.definition import PrinterSetup, ScenarioError
 from fake_marlin.emulator.scenario.definition import load as load_scenario
 from fake_marlin.emulator.server.clock import ScaledClock
 from fake_marlin.emulator.server.flash_file import FlashFile, FlashFileError
+from fake_marlin.emulator.trace.writer import Trace, TraceError
 from fake_marlin.emulator.server.lifecycle import PROTOCOLS, PrinterServer
 
 
@@ -139,6 +140,12 @@ def build_parser() -> argparse.ArgumentParser:
         help="keep the board's 256 KiB flash (what avrdude writes through the bootloader) in "
         "FILE across runs, created erased if missing (default: in memory, erased at start; with "
         "--printers, a pattern with {n}; see docs/bootloader.md)",
+    )
+    parser.add_argument(
+        "--trace", metavar="FILE",
+        help="write a wire trace to FILE: every byte each way, commands, planner room, heaters, "
+        "faults and resets, as JSON lines (gzip if FILE ends in .gz; with several printers, a "
+        "pattern with {n}); `fake-marlin report FILE` shows it, see docs/trace.md",
     )
     parser.add_argument(
         "--advanced-ok", action="store_true", help="Marlin's ADVANCED_OK: `ok N.. P.. B..`"
@@ -282,13 +289,19 @@ class _Running:
     """One printer of this process and what it holds open: its link, symlink, journal, card."""
 
     def __init__(self, plan: PrinterPlan, capabilities: dict[str, bool], in_farm: bool,
-                 cleanup: contextlib.ExitStack, flash_file: str | None = None) -> None:
+                 cleanup: contextlib.ExitStack, flash_file: str | None = None,
+                 trace_file: str | None = None, speed: float = 1.0) -> None:
         self.plan = plan
         flash = FlashFile.open(flash_file) if flash_file else None
         if flash is not None:
             cleanup.callback(flash.close)
         self.journal = Journal.open(plan.journal)
         cleanup.callback(self.journal.close)
+        trace = None
+        if trace_file:
+            trace = Trace.open(trace_file, plan.setup.protocol, speed, plan.faults.seed,
+                               printer=plan.number)
+            cleanup.callback(trace.close)
         self.link: PtyLink | TcpLink = make_link(plan.tcp, plan.rfc2217) or PtyLink()
         cleanup.callback(self.link.close)
         self.symlink = _Symlink(plan.link, self.link.path)
@@ -312,6 +325,7 @@ class _Running:
         self.server = PrinterServer(
             self.link, Printer(config), self.journal, plan.setup.server_config(plan.faults),
             memory=flash.memory if flash else None, flash_changed=flash.save if flash else None,
+            trace=trace,
         )
 
 
@@ -338,6 +352,9 @@ def main(argv: list[str] | None = None) -> int:
         parser.error("argument --flash-file: " + (
             "not with --farm: a farm's printers keep their flash in memory" if args.farm else
             "with --printers, put {n} in it (the printer's number, from 1)"))
+    if args.trace and len(plans) > 1 and "{n}" not in args.trace:
+        parser.error("argument --trace: with several printers, put {n} in it (the printer's "
+                     "number, from 1)")
     if args.control and (problem := check_control_path(args.control)):
         parser.error(f"argument --control: {problem}")
     # Until trio takes over the signals (and in case one lands before it does), a SIGTERM or
@@ -351,8 +368,9 @@ def main(argv: list[str] | None = None) -> int:
         for plan in plans:
             try:
                 printers.append(_Running(plan, capabilities, len(plans) > 1, cleanup,
-                                         numbered(args.flash_file, plan.number)))
-            except (LinkError, FlashFileError) as error:
+                                         numbered(args.flash_file, plan.number),
+                                         numbered(args.trace, plan.number), args.speed))
+            except (LinkError, FlashFileError, TraceError) as error:
                 print(f"fake-marlin: {error}", file=sys.stderr)
                 return 2
             except OSError as error:

@@ -9,6 +9,7 @@ from pathlib import Path
 from fake_marlin.emulator.scenario.definition import ScenarioError, load
 from fake_marlin.emulator.scenario.fuzz import PROTOCOLS as FUZZ_PROTOCOLS
 from fake_marlin.emulator.scenario.run import report, run_scenario
+from fake_marlin.emulator.trace.writer import TraceError
 
 
 def scenario_files(paths: list[str]) -> list[Path]:
@@ -38,6 +39,11 @@ def main(argv: list[str]) -> int:
         help="the host that prints the job: fake-marlin's own client (builtin)",
     )
     run.add_argument("--json", action="store_true", help="one JSON object per scenario instead")
+    run.add_argument(
+        "--trace", metavar="FILE",
+        help="write each run's wire trace (JSON lines, docs/trace.md; gzip if FILE ends in .gz); "
+        "with several scenarios FILE must contain {name}, the scenario's name",
+    )
     fuzz = _add_fuzz_parser(commands)
     args = parser.parse_args(argv)
     if args.command == "fuzz":
@@ -47,9 +53,18 @@ def main(argv: list[str]) -> int:
     except ScenarioError as error:
         print(f"fake-marlin scenario: {error}", file=sys.stderr)
         return 2
+    if args.trace is not None and len(scenarios) > 1 and "{name}" not in args.trace:
+        print(f"fake-marlin scenario: --trace {args.trace}: {len(scenarios)} scenarios would "
+              "write one file; put {name} in it", file=sys.stderr)
+        return 2
     passed = failed = 0
     for scenario in scenarios:
-        result = run_scenario(scenario)
+        trace = args.trace.replace("{name}", scenario.name) if args.trace else None
+        try:
+            result = run_scenario(scenario, trace)
+        except TraceError as error:
+            print(f"fake-marlin scenario: {error}", file=sys.stderr)
+            return 2
         passed += result.passed
         failed += not result.passed
         if args.json:

@@ -10,6 +10,7 @@ and any other bytes pass as they come.
 """
 
 import dataclasses
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from enum import Enum
 
@@ -124,6 +125,8 @@ class FaultLayer:
         self._link_rules = {d: self.plan.link_rules(d.value) for d in Direction}
         self._framers = self._framers_for(None)
         self._update_quiet()
+        # Told of every fault as it fires (the trace): kind, direction, count, unit.
+        self.on_fault: Callable[[str, str, int | None, bytes | None], None] | None = None
 
     def _update_quiet(self) -> None:
         # With no rule and no rate in a direction its bytes pass untouched: the server then
@@ -192,6 +195,8 @@ class FaultLayer:
                 if framer.is_filler(unit) or not self.plan.fires(index, text):
                     continue
                 kind = rule.kind
+                if self.on_fault is not None:
+                    self.on_fault(kind.value, direction.value, None, unit)
                 if kind is FaultKind.DROP:
                     out = b""
                 elif kind is FaultKind.DUPLICATE:
@@ -223,16 +228,27 @@ class FaultLayer:
             return data
         stats = self.stats[direction]
         if faults.line_corruption_rate:
+            corrupted = stats.lines_corrupted
             data = self._corrupt_lines(data, direction, faults.line_corruption_rate, stats)
+            if self.on_fault is not None and stats.lines_corrupted > corrupted:
+                self.on_fault("corrupt-lines", direction.value, stats.lines_corrupted - corrupted,
+                              None)
         byte_error_rate = 1.0 - (1.0 - faults.bit_error_rate) ** 8
         draw = self._byte_random[direction]
         out = bytearray()
+        flipped = 0
         for byte in data:
             if faults.drop_rate and draw.random() < faults.drop_rate:
                 continue
             if byte_error_rate and draw.random() < byte_error_rate:
                 byte ^= 1 << draw.randrange(8)
+                flipped += 1
             out.append(byte)
+        if self.on_fault is not None:
+            if flipped:
+                self.on_fault("bit-errors", direction.value, flipped, None)
+            if len(data) - len(out):
+                self.on_fault("drop-bytes", direction.value, len(data) - len(out), None)
         return bytes(out)
 
     def _corrupt_lines(self, data: bytes, direction: Direction, rate: float, stats: FaultStats) -> bytes:

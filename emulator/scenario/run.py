@@ -28,6 +28,7 @@ from fake_marlin.emulator.link.memory import HostEnd, MemoryLink
 from fake_marlin.emulator.printer.model import Printer, PrinterConfig
 from fake_marlin.emulator.scenario.definition import Scenario
 from fake_marlin.emulator.server.lifecycle import PrinterServer
+from fake_marlin.emulator.trace.writer import Trace
 from fake_marlin.host.connect import connect
 from fake_marlin.host.errors import ConnectionLost, HostError
 from fake_marlin.host.shell import ClientOptions, PrintSummary, StreamingClient, sole_exception
@@ -111,22 +112,33 @@ def pinned_scheduler(seed: int) -> Iterator[None]:
         run._r.setstate(saved[1])
 
 
-def run_scenario(scenario: Scenario) -> ScenarioResult:
+def run_scenario(scenario: Scenario, trace_path: str | None = None) -> ScenarioResult:
+    """Run the scenario; with `trace_path`, write its wire trace there (docs/trace.md), which
+    changes nothing in the run: the same digest, traced or not."""
     clock = trio.testing.MockClock(autojump_threshold=0)
     # The printer has an SD card, as `fake-marlin` gives it one: an empty temporary directory.
     with tempfile.TemporaryDirectory(prefix="fake-marlin-sd-") as sd_dir, pinned_scheduler(
         scenario.faults.seed
     ):
-        return trio.run(_run, scenario, Path(sd_dir), clock=clock)
+        trace = None
+        if trace_path:
+            trace = Trace.open(trace_path, scenario.printer.protocol, speed=1.0,
+                               seed=scenario.faults.seed, scenario=scenario.name)
+        try:
+            return trio.run(_run, scenario, Path(sd_dir), trace, clock=clock)
+        finally:
+            if trace is not None:
+                trace.close()
 
 
-async def _run(scenario: Scenario, sd_dir: Path) -> ScenarioResult:
+async def _run(scenario: Scenario, sd_dir: Path, trace: Trace | None = None) -> ScenarioResult:
     result = ScenarioResult(scenario)
     setup = scenario.printer
     printer = Printer(PrinterConfig(extruders=setup.extruders, sd_dir=sd_dir))
     journal_text = io.StringIO()
     link = MemoryLink()
-    server = PrinterServer(link, printer, Journal(journal_text), setup.server_config(scenario.faults))
+    server = PrinterServer(link, printer, Journal(journal_text), setup.server_config(scenario.faults),
+                           trace=trace)
     options = ClientOptions(
         window=scenario.host.window, timeout=scenario.host.timeout,
         max_transmissions=scenario.host.retries,
@@ -164,7 +176,27 @@ async def _run(scenario: Scenario, sd_dir: Path) -> ScenarioResult:
     result.printer_halted = printer.halted
     result.boots = server.boots
     result.checks = _check(scenario, result)
+    if trace is not None:
+        trace.verdict(_verdict_facts(result))
     return result
+
+
+def _verdict_facts(result: ScenarioResult) -> dict[str, object]:
+    """The run's verdict for the trace's `verdict` record."""
+    verdict = verify(list(enumerate(result.scenario.job, start=1)), result.journal)
+    summary = result.summary
+    return {
+        "passed": result.passed,
+        "outcome": result.outcome,
+        "job": len(result.scenario.job),
+        "ran": len(result.journal),
+        "exactly_once": verdict.passed(),
+        "missing": [p.command for p in verdict.problems if p.kind is Kind.MISSING],
+        "duplicated": [p.command for p in verdict.problems if p.kind is Kind.DUPLICATED],
+        "host": {"resends": summary.resends if summary else None,
+                 "timeouts": summary.timeouts if summary else None},
+        "text": report(result),
+    }
 
 
 async def _print_reconnecting(link, stream, scenario: Scenario, options, job: list[str]):

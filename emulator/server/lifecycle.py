@@ -20,6 +20,8 @@ from fake_marlin.emulator.sessions.marlin import MarlinSession
 from fake_marlin.emulator.sessions.repetier import RepetierSession
 from fake_marlin.emulator.sessions.stk500 import Stk500Session
 from fake_marlin.emulator.sessions.ultimaker import UltimakerSession
+from fake_marlin.emulator.trace.tap import PrinterSampler, TracedJournal, watch_rejects
+from fake_marlin.emulator.trace.writer import Trace
 
 PROTOCOLS = ("auto", "marlin", "ultimaker", "repetier", "commstack")
 
@@ -39,6 +41,7 @@ class PrinterServer:
     def __init__(
         self, link: Link, printer: Printer, journal: Journal, config: ServerConfig,
         memory: BoardMemory | None = None, flash_changed: Callable[[], None] | None = None,
+        trace: Trace | None = None,
     ) -> None:
         self.link = link
         self.printer = printer
@@ -50,8 +53,18 @@ class PrinterServer:
         self.config = config
         self.boots = 0
         self.faults = FaultLayer(config.faults)
+        # Traced, the bytes each way are told to the trace as they cross (after faults); not,
+        # they go straight on, and the trace costs nothing.
+        self.trace = trace
+        self._sampler: PrinterSampler | None = None
+        self._deliver = link.send
+        if trace is not None:
+            self._sampler = PrinterSampler(trace, printer)
+            self.journal = TracedJournal(journal, trace, self._sampler)
+            self._deliver = self._traced_deliver
+            self.faults.on_fault = trace.fault
         self._to_printer = Pipe(self._feed_session, config.conditions, config.faults.seed)
-        self._to_host = Pipe(link.send, config.conditions, config.faults.seed + 1)
+        self._to_host = Pipe(self._deliver, config.conditions, config.faults.seed + 1)
         self._restarts_in, self._restarts = trio.open_memory_channel[str](16)
         self._nursery: trio.Nursery | None = None
         self._session: Session | DetectingSession | None = None
@@ -69,6 +82,8 @@ class PrinterServer:
         so a host that opens the port as soon as it hears of it sees one boot, not two."""
         async with trio.open_nursery() as nursery:
             self._nursery = nursery
+            if self.trace is not None:
+                self.trace.begin()
             nursery.start_soon(self.link.run_writer)
             nursery.start_soon(self._to_printer.run)
             nursery.start_soon(self._to_host.run)
@@ -105,6 +120,8 @@ class PrinterServer:
             self._session_scope = scope
             task_status.started()
             now = trio.current_time()
+            if self.trace is not None:
+                self.trace.reset(reason)
             self.printer.reset(now)
             if self.config.boot_delay > 0:
                 await trio.sleep(self.config.boot_delay)
@@ -126,6 +143,12 @@ class PrinterServer:
         )
 
     def _protocol_session(self, protocol: str, reason: str) -> Session:
+        session = self._new_protocol_session(protocol, reason)
+        if self.trace is not None:
+            watch_rejects(session, self.trace)
+        return session
+
+    def _new_protocol_session(self, protocol: str, reason: str) -> Session:
         # Unit faults act on this protocol's units from now on, both ways.
         self.faults.set_protocol(protocol)
         if protocol == "stk500":
@@ -156,7 +179,7 @@ class PrinterServer:
         if not data:
             return
         if self.faults.quiet_to_host and self._to_host.passes_through:
-            self.link.send(data)  # the common case: straight to the link
+            self._deliver(data)  # the common case: straight to the link
         elif self.faults.quiet_to_host:
             self._to_host.put(data)
         else:
@@ -170,6 +193,8 @@ class PrinterServer:
 
     async def _hang_up(self, seconds: float) -> None:
         """The line is dead for `seconds`; the printer itself runs on, talking to nobody."""
+        if self.trace is not None:
+            self.trace.disconnect(seconds)
         self.link.hang_up()
         self._forget_the_line()
         await trio.sleep(seconds)
@@ -178,9 +203,22 @@ class PrinterServer:
     def _feed_session(self, data: bytes) -> None:
         # Bytes that arrive while the printer is still booting are lost, as on a real board.
         if self._session is not None and data:
+            if self._sampler is not None:
+                self._sampler.trace.bytes_in(data)
+                self._session.feed(data)
+                self._sampler.look()
+                return
             self._session.feed(data)
 
+    def _traced_deliver(self, data: bytes) -> None:
+        if self._sampler is not None and data:
+            self._sampler.trace.bytes_out(data)
+            self._sampler.look()
+        self.link.send(data)
+
     def _new_connection(self) -> None:
+        if self.trace is not None:
+            self.trace.connect()
         self.link.discard_output()
         self._forget_the_line()
         if self.config.baud_from_host:
@@ -201,6 +239,8 @@ class PrinterServer:
                 self._printer_fault(rule)
 
     def _printer_fault(self, rule: FaultRule) -> None:
+        if self.trace is not None:
+            self.trace.fault(rule.kind.value, None)
         session = self._active_session()
         if rule.kind is FaultKind.REBOOT:
             self._restarts_in.send_nowait(" Watchdog Reset")
@@ -243,7 +283,10 @@ class PrinterServer:
             await trio.sleep_until(powered_on + at)
             if rule.kind not in LINK_KINDS:
                 self._printer_fault(rule)
-            elif rule.kind is FaultKind.GARBAGE:
+                continue
+            if self.trace is not None:
+                self.trace.fault(rule.kind.value, rule.direction)
+            if rule.kind is FaultKind.GARBAGE:
                 noise = self.faults.plan.garbage(index)
                 if rule.direction == "to-printer":
                     self._to_printer.put(noise)

@@ -1,0 +1,172 @@
+"""The wire trace: what crossed the wire and what the printer did, as JSON lines (docs/trace.md).
+
+The printer server calls one method per thing that happened; each writes one line at once into
+a buffered file. Times are read here, from trio's clock (simulated, repeatable) and the wall
+clock (only for the `w` field, which says how the run went in real time). A trace costs the
+printer nothing when it is off: the server only calls in here when one was asked for.
+"""
+
+import gzip
+import io
+import json
+import math
+import time
+from typing import IO
+
+import trio
+
+from fake_marlin.emulator.printer.thermal import AMBIENT
+from fake_marlin.emulator.protocols.commstack import FrameRejected
+from fake_marlin.emulator.protocols.marlin import LineRejected
+from fake_marlin.emulator.protocols.repetier import CommandRejected
+from fake_marlin.emulator.protocols.ultimaker import PacketRejected
+
+VERSION = 1
+SAMPLE_INTERVAL = 1.0  # simulated seconds between heater samples while a heater is in use
+_UNIT_TEXT = 80  # a fault's unit is cut to this many characters
+
+
+class TraceError(Exception):
+    """The trace file cannot be written (the user's path)."""
+
+
+def _text(data: bytes) -> str:
+    return data.decode("latin-1")  # byte n is code point n: any byte survives JSON
+
+
+def reject_facts(event: object) -> tuple[str, int | None] | None:
+    """Why a protocol event refused what it got, and the number it asked for; None for an
+    event that refuses nothing."""
+    if isinstance(event, LineRejected):
+        return event.error.name.lower().replace("_", " "), event.resend
+    if isinstance(event, PacketRejected):
+        return event.reason.name.lower().replace("_", " "), event.expected
+    if isinstance(event, CommandRejected):
+        return event.reason, event.resend
+    if isinstance(event, FrameRejected):
+        return event.reason, None
+    return None
+
+
+class Trace:
+    def __init__(self, stream: IO[str], facts: dict[str, object]) -> None:
+        self._stream = stream
+        self._facts = {"version": VERSION, **facts}  # for the `begin` record
+        self._origin = 0.0  # trio time at power-on: `t` counts from there
+        self._wall_origin = time.monotonic()
+        self._room: int | None = None
+        self._targets: tuple[float, ...] = ()  # the heaters' targets at the last sample
+        self._in_use = False  # a heater was in use at the last sample
+        self._next_sample = -math.inf
+        self.commands = self.bytes_in_count = self.bytes_out_count = 0
+        self._closed = False
+        self._last = 0.0
+
+    @classmethod
+    def open(cls, path: str, protocol: str, speed: float, seed: int, scenario: str | None = None,
+             printer: int = 1, planner: int = 15) -> "Trace":
+        """A trace into `path` (gzip-compressed if it ends in .gz), of a printer so set up;
+        TraceError if it cannot be written."""
+        try:
+            if path.endswith(".gz"):
+                # mtime=0: the same run gives the same compressed bytes.
+                raw = gzip.GzipFile(path, "wb", mtime=0)
+                stream: IO[str] = io.TextIOWrapper(raw, encoding="utf-8")
+            else:
+                stream = open(path, "w", encoding="utf-8")
+        except OSError as error:
+            raise TraceError(f"cannot write the trace {path}: {error.strerror or error}") from None
+        return cls(stream, {"protocol": protocol, "speed": speed, "seed": seed,
+                            "scenario": scenario, "printer": printer, "planner": planner})
+
+    # -- records ---------------------------------------------------------------------------
+    def _write(self, kind: str, fields: str = "") -> None:
+        try:
+            self._last = now = trio.current_time() - self._origin
+        except RuntimeError:  # closed after trio.run returned: at the last moment it saw
+            now = self._last
+        wall = time.monotonic() - self._wall_origin
+        self._stream.write(f'{{"t":{now:.6f},"w":{wall:.3f},"k":"{kind}"{fields}}}\n')
+
+    def begin(self) -> None:
+        """The printer powers on: `t` counts from now."""
+        self._origin = trio.current_time()
+        self._write("begin", "," + json.dumps(self._facts, separators=(",", ":"))[1:-1])
+
+    def bytes_in(self, data: bytes) -> None:
+        self.bytes_in_count += len(data)
+        self._write("in", f',"b":{json.dumps(_text(data))}')
+
+    def bytes_out(self, data: bytes) -> None:
+        self.bytes_out_count += len(data)
+        self._write("out", f',"b":{json.dumps(_text(data))}')
+
+    def command(self, text: str) -> None:
+        self.commands += 1
+        self._write("cmd", f',"c":{json.dumps(text)}')
+
+    def room(self, free: int) -> None:
+        if free != self._room:
+            self._room = free
+            self._write("room", f',"v":{free}')
+
+    def heaters_due(self, now: float, targets: tuple[float, ...]) -> bool:
+        """Whether to sample the heaters now: a target changed, or a sample is due while a
+        heater is in use (its target set, or not yet back at room temperature)."""
+        if targets != self._targets:
+            return True
+        return now >= self._next_sample and self._in_use
+
+    def heaters(self, now: float, readings: list[tuple[str, float, float]]) -> None:
+        for name, current, target in readings:
+            self._write("temp", f',"h":"{name}","c":{current:.2f},"s":{target:g}')
+        self._targets = tuple(target for _, _, target in readings)
+        self._in_use = heaters_in_use(readings)
+        self._next_sample = now + SAMPLE_INTERVAL
+
+    def fault(self, kind: str, direction: str | None, count: int | None = None,
+              unit: bytes | None = None) -> None:
+        fields = f',"f":{json.dumps(kind)},"dir":{json.dumps(direction)}'
+        if count is not None:
+            fields += f',"n":{count}'
+        if unit is not None:
+            fields += f',"u":{json.dumps(_text(unit[:_UNIT_TEXT]))}'
+        self._write("fault", fields)
+
+    def reject(self, event: object) -> None:
+        facts = reject_facts(event)
+        if facts is not None:
+            why, resend = facts
+            self._write("reject", f',"why":{json.dumps(why)},"resend":{json.dumps(resend)}')
+
+    def reset(self, why: str) -> None:
+        self._room = None
+        self._write("reset", f',"why":{json.dumps(why)}')
+
+    def connect(self) -> None:
+        self._write("connect")
+
+    def disconnect(self, seconds: float) -> None:
+        self._write("disconnect", f',"seconds":{seconds:g}')
+
+    def verdict(self, facts: dict[str, object]) -> None:
+        self._write("verdict", "," + json.dumps(facts, separators=(",", ":"))[1:-1])
+
+    def close(self) -> None:
+        if self._closed:
+            return
+        self._closed = True
+        self._write("end", f',"commands":{self.commands},"bytes_in":{self.bytes_in_count},'
+                           f'"bytes_out":{self.bytes_out_count}')
+        self._stream.close()
+
+
+def heater_readings(printer, now: float) -> list[tuple[str, float, float]]:
+    heaters = [(f"T{index}", heater) for index, heater in enumerate(printer.hotends)]
+    heaters.append(("B", printer.bed))
+    return [(name, heater.temperature(now), heater.target) for name, heater in heaters]
+
+
+def heaters_in_use(readings: list[tuple[str, float, float]]) -> bool:
+    """Whether any heater has a target or is still away from room temperature."""
+    return any(target > 0 or abs(current - AMBIENT) > 0.5 for _, current, target in readings)
