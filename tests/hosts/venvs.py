@@ -5,17 +5,13 @@ project's own, and installing them takes a while, so each gets its own venv cach
 `~/.cache/fake-marlin/venvs/<name>-<version>`: a fresh clone builds it once, later runs reuse it.
 """
 
-import fcntl
-import json
-import shutil
 import subprocess
 import sys
-import tempfile
-import time
 from dataclasses import dataclass
 from pathlib import Path
 
 from fake_marlin.emulator.bench.runs import VENV_MARKER, venv_cache
+from tests.hosts.cache import built_once
 
 CACHE = venv_cache()  # the bench looks for them there too
 MARKER = VENV_MARKER
@@ -54,51 +50,21 @@ class Venv:
 
 
 def ensure(host: Host) -> Venv:
-    """The host's venv, building it first if no complete one is cached.
+    """The host's venv, building it first if no complete one is cached (tests/hosts/cache.py).
+    (Console scripts in the venv keep the build directory in their shebang: run everything
+    with `python -m`.)"""
 
-    A flock serialises pytest processes that start together. The venv is built in a temporary
-    directory and renamed into place only once the install and an import check succeeded, with a
-    marker file written last, so an interrupted run leaves nothing that looks usable. (Console
-    scripts in the venv keep the build directory in their shebang: run everything with
-    `python -m`.)
-    """
-    final = CACHE / f"{host.name}-{host.version}"
-    if (cached := _complete(final)) is not None:
-        return cached
-    CACHE.mkdir(parents=True, exist_ok=True)
-    with open(CACHE / f".{final.name}.lock", "w") as lock:
-        fcntl.flock(lock, fcntl.LOCK_EX)
-        if (cached := _complete(final)) is not None:
-            return cached
-        for stale in CACHE.glob(f".{final.name}.build-*"):
-            shutil.rmtree(stale, ignore_errors=True)
-        if final.exists():
-            shutil.rmtree(final)
-        build = Path(tempfile.mkdtemp(prefix=f".{final.name}.build-", dir=CACHE))
-        started = time.monotonic()
-        try:
-            _run([sys.executable, "-m", "venv", str(build)], "create the venv")
-            python = str(build / "bin" / "python")
-            _run([python, "-m", "pip", "install", "--disable-pip-version-check", *host.pip_args],
-                 f"pip install {' '.join(host.pip_args)}")
-            _run([python, "-c", f"import {host.module}"], f"import {host.module}")
-            seconds = round(time.monotonic() - started, 1)
-            (build / MARKER).write_text(json.dumps({"pip_args": host.pip_args, "install_seconds": seconds}))
-            build.rename(final)
-        except BaseException:
-            shutil.rmtree(build, ignore_errors=True)
-            raise
-        return Venv(final, seconds, True)
+    def build(directory: Path) -> None:
+        _run([sys.executable, "-m", "venv", str(directory)], "create the venv")
+        python = str(directory / "bin" / "python")
+        _run([python, "-m", "pip", "install", "--disable-pip-version-check", *host.pip_args],
+             f"pip install {' '.join(host.pip_args)}")
+        _run([python, "-c", f"import {host.module}"], f"import {host.module}")
 
-
-def _complete(path: Path) -> Venv | None:
-    try:
-        facts = json.loads((path / MARKER).read_text())
-    except (OSError, ValueError):
-        return None
-    venv = Venv(path, facts["install_seconds"], False)
     # bin/python links to the interpreter that built it: gone if that Python was removed.
-    return venv if venv.python.exists() else None
+    built = built_once(CACHE / f"{host.name}-{host.version}", MARKER, build,
+                       {"pip_args": host.pip_args}, lambda path: (path / "bin" / "python").exists())
+    return Venv(built.path, built.install_seconds, built.built_now)
 
 
 def _run(command: list[str], what: str) -> None:

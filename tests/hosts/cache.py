@@ -1,0 +1,60 @@
+"""A directory built once and kept: the real hosts' venvs and npm installs, outside the checkout.
+
+Installing a host takes a while and a fresh clone must do it only once, so each lives in a
+directory of its own under ~/.cache/fake-marlin, named after the host and its version. A flock
+serialises pytest processes that start together. The directory is built under a temporary
+name and renamed into place only once the build (and its check) succeeded, with a marker file
+written last, so an interrupted run leaves nothing that looks usable.
+"""
+
+import fcntl
+import json
+import shutil
+import tempfile
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+
+@dataclass(frozen=True)
+class Built:
+    path: Path
+    install_seconds: float  # how long the build took, whenever it happened
+    built_now: bool
+
+
+def built_once(final: Path, marker: str, build: Callable[[Path], None],
+               facts: dict[str, object], usable: Callable[[Path], bool]) -> Built:
+    """`final`, running `build(directory)` first if no complete one is there. `usable` says
+    whether a directory with its marker still works (its interpreter not gone, say)."""
+    if (cached := _complete(final, marker, usable)) is not None:
+        return cached
+    final.parent.mkdir(parents=True, exist_ok=True)
+    with open(final.parent / f".{final.name}.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        if (cached := _complete(final, marker, usable)) is not None:
+            return cached
+        for stale in final.parent.glob(f".{final.name}.build-*"):
+            shutil.rmtree(stale, ignore_errors=True)
+        if final.exists():
+            shutil.rmtree(final)
+        directory = Path(tempfile.mkdtemp(prefix=f".{final.name}.build-", dir=final.parent))
+        started = time.monotonic()
+        try:
+            build(directory)
+            seconds = round(time.monotonic() - started, 1)
+            (directory / marker).write_text(json.dumps({**facts, "install_seconds": seconds}))
+            directory.rename(final)
+        except BaseException:
+            shutil.rmtree(directory, ignore_errors=True)
+            raise
+        return Built(final, seconds, True)
+
+
+def _complete(path: Path, marker: str, usable: Callable[[Path], bool]) -> Built | None:
+    try:
+        facts = json.loads((path / marker).read_text())
+    except (OSError, ValueError):
+        return None
+    return Built(path, facts["install_seconds"], False) if usable(path) else None
