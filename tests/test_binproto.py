@@ -64,14 +64,10 @@ def upload(python: Path, port: str, job: Path, name: str, compress: bool) -> dic
 
 
 def printer_options(sd: Path, *extra: str) -> dict:
-    """A board that boots as a real one does after the open's reset. binproto2 sends M28B1
-    straight away (lost in the boot, it sends it again a second later, as against real
-    hardware), and its reader thread flushes the port once more as it starts, which the pty
-    takes for another open: with an instant boot the M28B1 could be answered just before that
-    second reset lands, and the host would talk binary to a fresh ASCII printer."""
+    """An instant boot: binproto2 sends M28B1 straight away, and its reader thread flushes the
+    port once more as it starts, which resets nothing (only an open does, link/opens.py)."""
     sd.mkdir()
-    return {"program": EMULATOR, "protocol": "marlin", "sd_dir": sd, "boot_delay": 0.5,
-            "extra_args": list(extra)}
+    return {"program": EMULATOR, "protocol": "marlin", "sd_dir": sd, "extra_args": list(extra)}
 
 
 def assert_on_the_card_and_listed(sd: Path, name: str, data: bytes, report: dict) -> None:

@@ -103,3 +103,28 @@ def test_the_plugin_fails_a_test_whose_printer_crashed(pytester):
     result = pytester.runpytest_subprocess("-p", "no:cacheprovider")
     result.assert_outcomes(passed=1, errors=1)
     result.stdout.fnmatch_lines(["*fake_printer on /dev/pts/*the printer exited with code -9*"])
+
+
+def test_opening_the_port_resets_the_printer_and_a_flush_does_not(fake_printer):
+    """A board resets on DTR when a host opens its port, not when the host flushes its input:
+    binproto2, for one, flushes again right after opening."""
+    boots = fake_printer.control.state()["boots"]
+    with serial.Serial(fake_printer.port, 250000, timeout=0.1) as link:
+        deadline = time.monotonic() + 5
+        while fake_printer.control.state()["boots"] == boots and time.monotonic() < deadline:
+            time.sleep(0.01)
+        opened = fake_printer.control.state()["boots"]
+        assert opened == boots + 1
+        for _ in range(3):
+            link.reset_input_buffer()
+            link.write(b"M105\n")
+            received = b""
+            while b"ok" not in received and time.monotonic() < deadline:
+                received += link.read(4096)
+            assert b"T:" in received
+        assert fake_printer.control.state()["boots"] == opened
+    with serial.Serial(fake_printer.port, 250000, timeout=0.1):
+        deadline = time.monotonic() + 5
+        while fake_printer.control.state()["boots"] == opened and time.monotonic() < deadline:
+            time.sleep(0.01)
+        assert fake_printer.control.state()["boots"] == opened + 1

@@ -2,8 +2,9 @@
 
 The slave side is what hosts open. We keep our own slave fd open so that a host closing the port
 does not make reads on the master fail, and we run the master in packet mode (TIOCPKT): a host's
-open() flushes its input, which reaches us as a FLUSHREAD notice. That notice is the pty's
-stand-in for the DTR reset a real board performs when a host opens the port.
+open() flushes its input, which reaches us as a FLUSHREAD notice. That notice, when the device
+was opened since the last one (link/opens.py), is the pty's stand-in for the DTR reset a real
+board performs when a host opens the port; a host flushing a port it has open resets nothing.
 """
 
 import errno
@@ -17,6 +18,7 @@ import tty
 import trio
 
 from fake_marlin.emulator.link.base import HostOpened, queue_output
+from fake_marlin.emulator.link.opens import open_watcher
 
 _TCGETS2 = 0x802C542A  # _IOR('T', 0x2A, struct termios2): reads custom rates such as 250000
 _TERMIOS2 = struct.Struct("IIIIB19sII")
@@ -40,6 +42,8 @@ class PtyLink:
         fcntl.ioctl(self._master, termios.TIOCPKT, struct.pack("i", 1))
         os.set_blocking(self._master, False)
         self.path = os.ttyname(self._slave)
+        self._opens = open_watcher()
+        self._watch = self._opens.watch(self.path)
 
     def hang_up(self) -> None:
         """The line goes dead, as when a USB cable is pulled: the host's port fails, and the
@@ -81,7 +85,9 @@ class PtyLink:
             if packet[0] == _TIOCPKT_DATA:
                 if len(packet) > 1:
                     return packet[1:]
-            elif packet[0] & _TIOCPKT_FLUSHREAD:
+            elif packet[0] & _TIOCPKT_FLUSHREAD and (
+                self._watch is None or self._opens.opened(self._watch)
+            ):
                 return HostOpened()
 
     def send(self, data: bytes) -> None:
@@ -151,6 +157,8 @@ class PtyLink:
         self.discard_output()
 
     def close(self) -> None:
+        self._opens.forget(self._watch)
+        self._watch = None
         for fd in (self._master, self._slave):
             try:
                 os.close(fd)
