@@ -340,6 +340,9 @@ def main(argv: list[str] | None = None) -> int:
     if argv[:1] == ["bench"]:
         from fake_marlin.emulator.bench.cli import main as bench_main
         return bench_main(argv[1:])
+    if argv[:1] == ["report"]:
+        from fake_marlin.emulator.cli.report import main as report_main
+        return report_main(argv[1:])
     parser = build_parser()
     args = parser.parse_args(argv)
     check_link_arguments(parser, args)

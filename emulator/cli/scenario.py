@@ -44,6 +44,12 @@ def main(argv: list[str]) -> int:
         help="write each run's wire trace (JSON lines, docs/trace.md; gzip if FILE ends in .gz); "
         "with several scenarios FILE must contain {name}, the scenario's name",
     )
+    run.add_argument(
+        "--report", metavar="OUTDIR",
+        help="write a report page per scenario (as `fake-marlin report` does) and "
+        "OUTDIR/index.html linking them with their verdicts; each run is traced to "
+        "OUTDIR/<file name>.trace.jsonl.gz unless --trace says where (needs fake-marlin[report])",
+    )
     fuzz = _add_fuzz_parser(commands)
     args = parser.parse_args(argv)
     if args.command == "fuzz":
@@ -57,9 +63,17 @@ def main(argv: list[str]) -> int:
         print(f"fake-marlin scenario: --trace {args.trace}: {len(scenarios)} scenarios would "
               "write one file; put {name} in it", file=sys.stderr)
         return 2
+    if args.report is not None and (problem := _report_problem(Path(args.report))):
+        print(f"fake-marlin scenario: --report {args.report}: {problem}", file=sys.stderr)
+        return 2
     passed = failed = 0
+    traces = []
     for scenario in scenarios:
         trace = args.trace.replace("{name}", scenario.name) if args.trace else None
+        if trace is None and args.report is not None:
+            trace = str(Path(args.report) / f"{scenario.path.stem}.trace.jsonl.gz")
+        if trace is not None:
+            traces.append(Path(trace))
         try:
             result = run_scenario(scenario, trace)
         except TraceError as error:
@@ -79,9 +93,28 @@ def main(argv: list[str]) -> int:
             }))
         else:
             print(report(result), flush=True)
+    if args.report is not None:
+        from fake_marlin.emulator.report.build import write_reports
+
+        index = write_reports(traces, Path(args.report))
+        print(f"reports: {index}", file=sys.stderr if args.json else sys.stdout)
     if not args.json:
         print(f"scenarios: {passed} passed, {failed} failed")
     return 0 if failed == 0 else 1
+
+
+def _report_problem(outdir: Path) -> str | None:
+    """Why reports cannot be written to `outdir` (made here if missing), or None."""
+    from fake_marlin.emulator.report.build import MissingPlotting, require_plotting
+
+    try:
+        require_plotting()
+        outdir.mkdir(parents=True, exist_ok=True)
+    except MissingPlotting as error:
+        return str(error)
+    except OSError as error:
+        return f"cannot make the directory: {error.strerror or error}"
+    return None
 
 
 
