@@ -103,7 +103,8 @@ def build_parser() -> argparse.ArgumentParser:
         description="Start a virtual Marlin printer on a pseudo-terminal and print its /dev/pts path.",
         epilog="Also: `fake-marlin scenario run PATH...` runs scenarios with the built-in host; "
         "`fake-marlin verify JOB.gcode JOURNAL` checks a journal against its job; "
-        "`fake-marlin bench` measures its speed against a bare responder.",
+        "`fake-marlin bench` measures its speed against a bare responder; "
+        "`fake-marlin report TRACE` turns a --trace file into an HTML page.",
     )
     parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
     parser.add_argument(
