@@ -103,15 +103,19 @@ def serve(master: int, responder: Responder) -> None:
             packet = os.read(master, 65536)
         except BlockingIOError:
             continue
-        reply = _answer_packet(responder, packet)
-        if reply:
-            try:
-                os.write(master, reply)
-            except OSError as error:
-                # Nobody reads the port and its buffer is full: the bytes are lost, as on a wire
-                # nobody listens to (a host never streams without reading).
-                if error.errno not in (errno.EAGAIN, errno.EIO):
-                    raise
+        _write_reply(master, _answer_packet(responder, packet))
+
+
+def _write_reply(master: int, reply: bytes) -> None:
+    if not reply:
+        return
+    try:
+        os.write(master, reply)
+    except OSError as error:
+        # Nobody reads the port and its buffer is full: the bytes are lost, as on a wire nobody
+        # listens to (a host never streams without reading).
+        if error.errno not in (errno.EAGAIN, errno.EIO):
+            raise
 
 
 def _answer_packet(responder: Responder, packet: bytes) -> bytes:
@@ -130,15 +134,10 @@ async def serve_on_trio(master: int, responder: Responder) -> None:
     while True:
         await trio.lowlevel.wait_readable(master)
         try:
-            reply = _answer_packet(responder, os.read(master, 65536))
+            packet = os.read(master, 65536)
         except BlockingIOError:
             continue
-        if reply:
-            try:
-                os.write(master, reply)
-            except OSError as error:
-                if error.errno not in (errno.EAGAIN, errno.EIO):
-                    raise
+        _write_reply(master, _answer_packet(responder, packet))
 
 
 async def _serve_on_trio_until_signalled(master: int) -> None:

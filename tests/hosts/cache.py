@@ -10,11 +10,14 @@ written last, so an interrupted run leaves nothing that looks usable.
 import fcntl
 import json
 import shutil
+import subprocess
 import tempfile
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+
+INSTALL_TIMEOUT = 1200  # seconds for one step of an install (pip, npm)
 
 
 @dataclass(frozen=True)
@@ -58,3 +61,16 @@ def _complete(path: Path, marker: str, usable: Callable[[Path], bool]) -> Built 
     except (OSError, ValueError):
         return None
     return Built(path, facts["install_seconds"], False) if usable(path) else None
+
+
+def run_step(command: list[str], what: str, error: type[Exception], cwd: Path | None = None) -> None:
+    """One step of a build; `error` (the installer's own) says what failed, with the tail of
+    what the command printed."""
+    try:
+        done = subprocess.run(command, capture_output=True, text=True, timeout=INSTALL_TIMEOUT,
+                              cwd=cwd, stdin=subprocess.DEVNULL)
+    except subprocess.TimeoutExpired as timeout:
+        raise error(f"could not {what}: no result after {timeout.timeout} s") from None
+    if done.returncode != 0:
+        tail = "\n".join((done.stdout + done.stderr).strip().splitlines()[-25:])
+        raise error(f"could not {what} (exit {done.returncode}):\n{tail}")

@@ -7,15 +7,13 @@ and npm come with the machine; where they are missing they are installed from De
 """
 
 import os
-import subprocess
 from dataclasses import dataclass
 from pathlib import Path
 
 from tests.hosts.apt import AptInstallFailed, AptUnavailable, ensure_apt_package
-from tests.hosts.cache import built_once
+from tests.hosts.cache import built_once, run_step
 
 MARKER = "fake-marlin-npm.json"  # written last: the install is whole
-INSTALL_TIMEOUT = 1200
 
 
 def npm_cache() -> Path:
@@ -82,14 +80,7 @@ def node_tools() -> tuple[str, str]:
 
 
 def _run(command: list[str], what: str, cwd: Path | None = None) -> None:
-    try:
-        done = subprocess.run(command, capture_output=True, text=True, timeout=INSTALL_TIMEOUT, cwd=cwd,
-                              stdin=subprocess.DEVNULL)
-    except subprocess.TimeoutExpired as timeout:
-        raise NpmError(f"could not {what}: no result after {timeout.timeout} s") from None
-    if done.returncode != 0:
-        tail = "\n".join((done.stdout + done.stderr).strip().splitlines()[-25:])
-        raise NpmError(f"could not {what} (exit {done.returncode}):\n{tail}")
+    run_step(command, what, NpmError, cwd)
 
 
 if __name__ == "__main__":

@@ -5,17 +5,15 @@ project's own, and installing them takes a while, so each gets its own venv cach
 `~/.cache/fake-marlin/venvs/<name>-<version>`: a fresh clone builds it once, later runs reuse it.
 """
 
-import subprocess
 import sys
 from dataclasses import dataclass
 from pathlib import Path
 
 from fake_marlin.emulator.bench.runs import VENV_MARKER, venv_cache
-from tests.hosts.cache import built_once
+from tests.hosts.cache import built_once, run_step
 
 CACHE = venv_cache()  # the bench looks for them there too
 MARKER = VENV_MARKER
-INSTALL_TIMEOUT = 1200
 
 
 @dataclass(frozen=True)
@@ -68,13 +66,7 @@ def ensure(host: Host) -> Venv:
 
 
 def _run(command: list[str], what: str) -> None:
-    try:
-        done = subprocess.run(command, capture_output=True, text=True, timeout=INSTALL_TIMEOUT)
-    except subprocess.TimeoutExpired as timeout:
-        raise VenvError(f"could not {what}: no result after {timeout.timeout} s") from None
-    if done.returncode != 0:
-        tail = "\n".join((done.stdout + done.stderr).strip().splitlines()[-25:])
-        raise VenvError(f"could not {what} (exit {done.returncode}):\n{tail}")
+    run_step(command, what, VenvError)
 
 
 if __name__ == "__main__":
