@@ -63,7 +63,7 @@ BAD_FILES = [
     # (what the file holds, the line named, words of the message)
     ("", None, "empty"),
     (BEGIN + '{"t":1,"w":0,"k":"cmd","c":"G28"}\n{"t":1,"k":"cmd", "c"\n', 3, "not JSON"),
-    (BEGIN + '{"t":1,"w":0,"k":"cmd","c":"G28"}', 2, "ends in the middle of a record"),
+    (BEGIN[:-10], 1, "ends in the middle of a record"),  # nothing whole to show
     ('{"t":0,"w":0,"k":"cmd","c":"G28"}\n', 1, "not a fake-marlin trace"),
     ('{"t":0,"w":0,"k":"begin","version":7}\n', 1, "trace version 7"),
     (BEGIN + '[1, 2]\n', 2, "not a JSON object"),
@@ -93,12 +93,24 @@ def test_bytes_that_are_no_utf8_are_named_by_line(tmp_path):
         read_trace(path)
 
 
-def test_a_gzip_trace_cut_short_says_so(tmp_path):
-    packed = gzip.compress(marlin_print().text().encode())
+def test_a_gzip_trace_cut_short_shows_what_came_before_and_says_so(tmp_path):
+    """A printer killed while writing its trace: its last records are the ones wanted most."""
+    text = marlin_print().text()
+    packed = gzip.compress(text.encode())
     path = tmp_path / "cut.jsonl.gz"
     path.write_bytes(packed[: len(packed) // 2])
-    with pytest.raises(TraceError, match=r"cut.jsonl.gz:\d+: the compressed file is cut short"):
-        read_trace(path)
+    trace = read_trace(path)
+    assert 0 < len(trace.records) < text.count("\n") - 1 and trace.end is None
+    assert re.search(r"cut.jsonl.gz:\d+: the compressed file is cut short", trace.cut_short)
+    assert "stops short" in summarise(trace).notes[0]
+
+
+def test_a_plain_trace_cut_mid_record_shows_the_whole_records(tmp_path):
+    path = tmp_path / "cut.jsonl"
+    path.write_text(BEGIN + '{"t":1,"w":0,"k":"cmd","c":"G28"}\n{"t":2,"w":0,"k":"cmd","c":"G1')
+    trace = read_trace(path)
+    assert [r["c"] for r in trace.records] == ["G28"]
+    assert trace.cut_short.startswith(f"{path}:3: the file ends in the middle of a record")
 
 
 def test_a_missing_file_is_a_trace_error(tmp_path):

@@ -47,6 +47,9 @@ class Trace:
     end: dict[str, Any] | None = None  # None: the writer stopped before its last line
     verdict: dict[str, Any] | None = None
     skipped: dict[str, int] = field(default_factory=dict)  # unknown kind -> how many
+    # Why the file stops short, when a printer killed mid-write left a cut record or a cut
+    # compressed stream: what came before is read and shown, with this said.
+    cut_short: str | None = None
 
     @property
     def name(self) -> str:
@@ -62,7 +65,8 @@ def read_trace(path: str | Path) -> Trace:
     begin: dict[str, Any] | None = None
     trace: Trace | None = None
     number = 0
-    for number, record in _records(path):
+    cut: list[str] = []
+    for number, record in _records(path, cut):
         kind = record["k"]
         if begin is None:
             if kind != "begin":
@@ -86,27 +90,32 @@ def read_trace(path: str | Path) -> Trace:
         elif kind == "verdict":
             trace.verdict = record
     if trace is None:
+        if cut:
+            raise TraceError(cut[0])
         raise TraceError(f"{path}: empty: no records at all")
+    trace.cut_short = cut[0] if cut else None
     return trace
 
 
-def _records(path: Path) -> Iterator[tuple[int, dict[str, Any]]]:
-    """(line number, record) for every line, checked against REQUIRED for the known kinds."""
+def _records(path: Path, cut: list[str]) -> Iterator[tuple[int, dict[str, Any]]]:
+    """(line number, record) for every line, checked against REQUIRED for the known kinds.
+    A file cut short (a last line without its line end, a compressed stream that stops) ends
+    the records, and `cut` gets the reason."""
     number = 0
     try:
         with _open(path) as file:
             for number, raw in enumerate(file, 1):
                 if not raw.endswith(b"\n"):
-                    raise TraceError(f"{path}:{number}: the file ends in the middle of a record "
-                                     "(was the writer stopped?)")
+                    cut.append(f"{path}:{number}: the file ends in the middle of a record "
+                               "(was the writer stopped?)")
+                    return
                 if raw.strip():
                     yield number, _parse(path, number, raw)
     except OSError as error:  # also gzip's BadGzipFile
         where = f"{path}:{number + 1}" if number else str(path)
         raise TraceError(f"{where}: cannot read: {error.strerror or error}") from None
     except (EOFError, zlib.error) as error:
-        raise TraceError(f"{path}:{number + 1}: the compressed file is cut short or damaged "
-                         f"({error})") from None
+        cut.append(f"{path}:{number + 1}: the compressed file is cut short or damaged ({error})")
 
 
 def _open(path: Path) -> Any:

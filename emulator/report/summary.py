@@ -76,7 +76,9 @@ def summarise(trace: Trace, job: str | None = None, job_name: str = "the job") -
     if trace.end is not None and isinstance(trace.end.get("w"), (int, float)):
         facts.append(("wall time", f"{trace.end['w']:.2f} s"))
     notes = []
-    if trace.end is None:
+    if trace.cut_short is not None:
+        notes.append(f"The trace stops short, and what came before is shown: {trace.cut_short}.")
+    elif trace.end is None:
         notes.append("The trace has no end record: the printer stopped before writing it.")
     if trace.skipped:
         kinds = ", ".join(f"{count} {kind!r}" for kind, count in sorted(trace.skipped.items()))

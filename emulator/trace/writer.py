@@ -22,6 +22,9 @@ from fake_marlin.emulator.protocols.repetier import CommandRejected
 from fake_marlin.emulator.protocols.ultimaker import PacketRejected
 
 VERSION = 1
+# A printer killed mid-run (the field bug being chased) loses at most this many records: the
+# trace is flushed to the file after so many, and at each fault, refusal, reset and connection.
+FLUSH_EVERY = 256
 SAMPLE_INTERVAL = 1.0  # simulated seconds between heater samples while a heater is in use
 _UNIT_TEXT = 80  # a fault's unit is cut to this many characters
 
@@ -61,6 +64,7 @@ class Trace:
         self.commands = self.bytes_in_count = self.bytes_out_count = 0
         self._closed = False
         self._last = 0.0
+        self._unflushed = 0
 
     @classmethod
     def open(cls, path: str, protocol: str, speed: float, seed: int, scenario: str | None = None,
@@ -87,6 +91,13 @@ class Trace:
             now = self._last
         wall = time.monotonic() - self._wall_origin
         self._stream.write(f'{{"t":{now:.6f},"w":{wall:.3f},"k":"{kind}"{fields}}}\n')
+        self._unflushed += 1
+        if self._unflushed >= FLUSH_EVERY:
+            self.flush()
+
+    def flush(self) -> None:
+        self._unflushed = 0
+        self._stream.flush()
 
     def begin(self) -> None:
         """The printer powers on: `t` counts from now."""
@@ -132,22 +143,27 @@ class Trace:
         if unit is not None:
             fields += f',"u":{json.dumps(_text(unit[:_UNIT_TEXT]))}'
         self._write("fault", fields)
+        self.flush()
 
     def reject(self, event: object) -> None:
         facts = reject_facts(event)
         if facts is not None:
             why, resend = facts
             self._write("reject", f',"why":{json.dumps(why)},"resend":{json.dumps(resend)}')
+            self.flush()
 
     def reset(self, why: str) -> None:
         self._room = None
         self._write("reset", f',"why":{json.dumps(why)}')
+        self.flush()
 
     def connect(self) -> None:
         self._write("connect")
+        self.flush()
 
     def disconnect(self, seconds: float) -> None:
         self._write("disconnect", f',"seconds":{seconds:g}')
+        self.flush()
 
     def verdict(self, facts: dict[str, object]) -> None:
         self._write("verdict", "," + json.dumps(facts, separators=(",", ":"))[1:-1])
