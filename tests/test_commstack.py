@@ -6,7 +6,7 @@ import struct
 import pytest
 import trio
 import trio.testing
-from hypothesis import given
+from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from fake_marlin.emulator.faults.layer import FaultConfig, parse_fault
@@ -98,6 +98,20 @@ def test_garbage_never_crashes_either_side(data):
     host = CommStackEndpoint()
     host.receive_data(data)
     host.poll(0.0)
+
+
+@settings(max_examples=200)
+@given(st.integers(1, 9), st.binary(max_size=40))
+def test_an_answer_that_follows_a_cut_one_in_the_same_block_is_still_heard(cut, data):
+    """A frame cut short loses its 0x00, so the next frame's bytes join it: the host takes the
+    whole frame at the end of such a block (campaign 2030, case 880)."""
+    host = CommStackEndpoint()
+    exchange = host.start(0x41)
+    host.poll(0.0)
+    spoiled = encode_packet(Packet(Task.FILE_SAVE_DATA, CommType.RESPONSE_SUCCESS, b"\x07\x00"))
+    host.receive_data(spoiled[:cut] + encode_packet(Packet(0x41, CommType.RESPONSE_SUCCESS, data)))
+    assert exchange.outcome is Outcome.SUCCESS and exchange.answer == data
+    assert host.stats.corrupt_frames == 1
 
 
 # -- the MK20's receiver --------------------------------------------------------------------

@@ -105,6 +105,21 @@ class CommStackStats:
     unconfirmed: int = 0
 
 
+def _frame_after_a_cut(frame: bytes) -> Packet | None:
+    """The whole frame at the end of a block that would not decode, if there is one.
+
+    A frame cut short on the line loses its closing 0x00, so the next frame's bytes join it
+    in one block and that frame is lost with it: a printer whose every other answer was cut
+    would seem to answer none. A whole frame that follows a cut starts at some byte of the
+    block and runs to its end; one whose header and data checksums both hold is taken.
+    """
+    for start in range(1, len(frame)):
+        decoded = decode_frame(frame[start:])
+        if isinstance(decoded, Packet):
+            return decoded
+    return None
+
+
 class CommStackEndpoint:
     def __init__(self, timeout: float = 2.0) -> None:
         self.timeout = timeout
@@ -147,9 +162,13 @@ class CommStackEndpoint:
         while (frame := self._frames.next_frame()) is not None:
             decoded = decode_frame(frame)
             if not isinstance(decoded, Packet):
-                if frame:
-                    self.stats.corrupt_frames += 1  # the ESP only logs these
-                continue
+                if not frame:
+                    continue
+                self.stats.corrupt_frames += 1  # the ESP only logs these
+                recovered = _frame_after_a_cut(frame)
+                if recovered is None:
+                    continue
+                decoded = recovered
             if decoded.comm_type == CommType.REQUEST:
                 self._answer(decoded)
             else:
