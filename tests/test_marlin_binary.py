@@ -30,7 +30,7 @@ from fake_marlin.wire import marlin_binary as wire
 from fake_marlin.wire.framing import split_units
 from fake_marlin.wire.marlin_binary import Packet, PacketError, decode, encode, open_payload
 from tests.conftest import running_printer
-from tests.terminal import Terminal
+from tests.terminal import Terminal, numbered
 
 CONTROL, FILE = wire.Protocol.CONTROL, wire.Protocol.FILE_TRANSFER
 SYNC, CLOSE = wire.Control.SYNC, wire.Control.CLOSE
@@ -498,3 +498,16 @@ async def test_without_the_capability_m28_b1_is_a_file_named_b1(tmp_path, autoju
         assert (sd / "B1").exists()
     async with marlin(tmp_path / "b0") as (host, sd):
         assert await host.command("M28 B0 up.gco") == ["Writing to file: up.gco", "ok"]
+
+
+async def test_an_m28_b1_printed_from_the_card_leaves_the_hosts_next_m28_an_ascii_upload(
+        tmp_path, autojump_clock):
+    async with marlin(tmp_path) as (host, sd):
+        (sd / "job.g").write_text("M28 B1\nG4 P10\n")
+        assert (await host.command("M23 job.g"))[-1] == "ok"
+        await host.command("M24")
+        await host.read_until(lambda line: line == "Done printing file")
+        assert await host.command("M28 up.gco") == ["Writing to file: up.gco", "ok"]
+        assert await host.command(numbered(1, "G1 X1")) == ["ok"]  # saved, not run
+        assert (await host.command("M29"))[-1] == "ok"
+        assert (sd / "up.gco").read_text() == "G1 X1\n"

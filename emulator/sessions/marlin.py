@@ -186,6 +186,9 @@ class MarlinSession:
         self._before_command(text)
         if self.printer.halted:
             return None
+        # Set by this command alone (M28 B1) and read when it is done: one from the card, which
+        # never reaches _done, must not turn the host's next M28 into the binary switch.
+        self.printer.sd.binary_mode = False
         self._reports = self._report_settings()
         return CommandRun(self.printer, text, self.journal, self._say, command)
 
