@@ -60,6 +60,7 @@ from typing import TypeVar
 from fake_marlin.host.codecs.marlin import is_halt_message
 from fake_marlin.host.errors import CommandError, PrinterHalted, PrinterNotResponding, UploadFailed
 from fake_marlin.wire.commstack import (
+    BUFFER_SIZE,
     CHUNK_SIZE,
     MAX_DATA,
     CommType,
@@ -113,7 +114,9 @@ def _frame_after_a_cut(frame: bytes) -> Packet | None:
     would seem to answer none. A whole frame that follows a cut starts at some byte of the
     block and runs to its end; one whose header and data checksums both hold is taken.
     """
-    for start in range(1, len(frame)):
+    # A whole frame is at most BUFFER_SIZE encoded bytes: only the block's tail can hold one
+    # (a long run of noise costs one look per byte of that tail, not per byte of the block).
+    for start in range(max(1, len(frame) - BUFFER_SIZE), len(frame)):
         decoded = decode_frame(frame[start:])
         if isinstance(decoded, Packet):
             return decoded
