@@ -107,3 +107,14 @@ def test_a_trace_that_cannot_be_written_is_refused_in_one_line(args, complaint):
     assert done.returncode == 2
     assert "Traceback" not in done.stderr
     assert complaint in done.stderr.strip().splitlines()[-1]  # after argparse's usage, if any
+
+
+def test_a_trace_that_fails_to_write_stops_and_the_printer_runs_on(capsys):
+    """A full disk must cost the trace, not the run."""
+    scenario = load(SCENARIOS / "marlin-lost-oks.toml")
+    plain = run_scenario(scenario)
+    broken = run_scenario(scenario, "/dev/full")
+    assert broken.digest == plain.digest and broken.passed
+    said = capsys.readouterr().err.strip().splitlines()
+    assert said == ["fake-marlin: cannot write the trace /dev/full: No space left on device; "
+                    "tracing stopped, the printer runs on"]

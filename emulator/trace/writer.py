@@ -10,6 +10,7 @@ import gzip
 import io
 import json
 import math
+import sys
 import time
 from typing import IO
 
@@ -52,8 +53,10 @@ def reject_facts(event: object) -> tuple[str, int | None] | None:
 
 
 class Trace:
-    def __init__(self, stream: IO[str], facts: dict[str, object]) -> None:
+    def __init__(self, stream: IO[str], facts: dict[str, object], path: str = "") -> None:
         self._stream = stream
+        self._path = path
+        self._broken = False  # a write failed (a full disk): the printer runs on untraced
         self._facts = {"version": VERSION, **facts}  # for the `begin` record
         self._origin = 0.0  # trio time at power-on: `t` counts from there
         self._wall_origin = time.monotonic()
@@ -73,7 +76,7 @@ class Trace:
         TraceError if it cannot be written."""
         try:
             if path.endswith(".gz"):
-                # mtime=0: the same run gives the same compressed bytes.
+                # mtime=0: no date in the gzip header.
                 raw = gzip.GzipFile(path, "wb", mtime=0)
                 stream: IO[str] = io.TextIOWrapper(raw, encoding="utf-8")
             else:
@@ -81,7 +84,7 @@ class Trace:
         except OSError as error:
             raise TraceError(f"cannot write the trace {path}: {error.strerror or error}") from None
         return cls(stream, {"protocol": protocol, "speed": speed, "seed": seed,
-                            "scenario": scenario, "printer": printer, "planner": planner})
+                            "scenario": scenario, "printer": printer, "planner": planner}, path)
 
     # -- records ---------------------------------------------------------------------------
     def _write(self, kind: str, fields: str = "") -> None:
@@ -90,14 +93,31 @@ class Trace:
         except RuntimeError:  # closed after trio.run returned: at the last moment it saw
             now = self._last
         wall = time.monotonic() - self._wall_origin
-        self._stream.write(f'{{"t":{now:.6f},"w":{wall:.3f},"k":"{kind}"{fields}}}\n')
+        if self._broken:
+            return
+        try:
+            self._stream.write(f'{{"t":{now:.6f},"w":{wall:.3f},"k":"{kind}"{fields}}}\n')
+        except OSError as error:
+            self._give_up(error)
+            return
         self._unflushed += 1
         if self._unflushed >= FLUSH_EVERY:
             self.flush()
 
     def flush(self) -> None:
         self._unflushed = 0
-        self._stream.flush()
+        if self._broken:
+            return
+        try:
+            self._stream.flush()
+        except OSError as error:
+            self._give_up(error)
+
+    def _give_up(self, error: OSError) -> None:
+        """The printer must not die of its trace: say so once, and trace no more."""
+        self._broken = True
+        print(f"fake-marlin: cannot write the trace {self._path}: {error.strerror or error}; "
+              "tracing stopped, the printer runs on", file=sys.stderr)
 
     def begin(self) -> None:
         """The printer powers on: `t` counts from now."""
@@ -174,7 +194,11 @@ class Trace:
         self._closed = True
         self._write("end", f',"commands":{self.commands},"bytes_in":{self.bytes_in_count},'
                            f'"bytes_out":{self.bytes_out_count}')
-        self._stream.close()
+        try:
+            self._stream.close()
+        except OSError as error:
+            if not self._broken:
+                self._give_up(error)
 
 
 def heater_readings(printer, now: float) -> list[tuple[str, float, float]]:
