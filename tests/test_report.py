@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 
 from fake_marlin.emulator.report import TraceError, read_trace, render_report, write_reports
-from fake_marlin.emulator.report.series import bin_width, build_series
+from fake_marlin.emulator.report.series import MAX_BINS, bin_width, build_series
 from fake_marlin.emulator.report.summary import summarise
 from fake_marlin.emulator.report.wirelog import embed_json, log_rows, show_bytes
 from tests.trace_samples import TraceBuilder, big_trace, marlin_print
@@ -72,6 +72,12 @@ BAD_FILES = [
     (BEGIN + '{"t":1,"w":0,"k":"temp","c":20,"s":0}\n', 2, "'h' is missing"),
     (BEGIN + '{"t":1,"w":0,"k":"room","v":"many"}\n', 2, "'v' is not a number"),
     (BEGIN + '{"t":1,"w":0,"k":"end"}\n{"t":1,"w":0,"k":"cmd","c":"G28"}\n', 3, "after the 'end'"),
+    (BEGIN + '{"t":NaN,"w":0,"k":"cmd","c":"G28"}\n', 2, "at no real time"),
+    (BEGIN + '{"t":Infinity,"w":0,"k":"cmd","c":"G28"}\n', 2, "at no real time"),
+    (BEGIN + '{"t":5,"w":0,"k":"cmd","c":"G28"}\n{"t":-1e9,"w":0,"k":"cmd","c":"G1"}\n', 3,
+     "time never goes back"),
+    (BEGIN + '{"t":1,"w":0,"k":"verdict","passed":true,"host":3}\n', 2, "'host' is not an object"),
+    (BEGIN + '{"t":1,"w":0,"k":"verdict","passed":true,"missing":"G1"}\n', 2, "not a list"),
 ]
 
 
@@ -376,3 +382,10 @@ def test_scenario_run_report_problems_are_one_line(tmp_path):
                        env={**os.environ, "PYTHONPATH": str(blocker.parent)})
     assert done.returncode == 2 and done.stdout == "" and not (tmp_path / "out").exists()
     assert "pip install 'fake-marlin[report]'" in done.stderr and done.stderr.count("\n") == 1
+
+
+def test_a_trace_of_years_still_makes_a_page_of_few_bins(tmp_path):
+    path = tmp_path / "long.jsonl"
+    path.write_text(BEGIN + '{"t":1,"w":0,"k":"cmd","c":"G28"}\n{"t":1e15,"w":0,"k":"cmd","c":"G1"}\n')
+    series = build_series(read_trace(path))
+    assert 1 < len(series.rate) <= MAX_BINS + 1

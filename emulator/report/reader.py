@@ -7,6 +7,7 @@ this version does not know are skipped (a newer writer may add kinds), and count
 
 import gzip
 import json
+import math
 import zlib
 from collections.abc import Iterator
 from dataclasses import dataclass, field
@@ -33,6 +34,11 @@ REQUIRED: dict[str, dict[str, tuple[type, ...]]] = {
     "end": {},
 }
 KINDS = tuple(REQUIRED)
+# Keys a kind may leave out, but whose values must have these types when they are there.
+OPTIONAL: dict[str, dict[str, tuple[type, ...]]] = {
+    "verdict": {"host": (dict, type(None)), "missing": (list, type(None)),
+                "duplicated": (list, type(None))},
+}
 
 
 class TraceError(Exception):
@@ -66,8 +72,13 @@ def read_trace(path: str | Path) -> Trace:
     trace: Trace | None = None
     number = 0
     cut: list[str] = []
+    last_t = -math.inf
     for number, record in _records(path, cut):
         kind = record["k"]
+        if record["t"] < last_t:
+            raise TraceError(f"{path}:{number}: a {kind!r} record at {record['t']} s, before "
+                             f"the record above it ({last_t} s): time never goes back in a trace")
+        last_t = record["t"]
         if begin is None:
             if kind != "begin":
                 raise TraceError(f"{path}:{number}: not a fake-marlin trace (the first record is "
@@ -138,6 +149,12 @@ def _parse(path: Path, number: int, raw: bytes) -> dict[str, Any]:
         raise TraceError(f"{path}:{number}: a record without its kind ('k')")
     if not isinstance(record.get("t"), _NUMBER) or isinstance(record.get("t"), bool):
         raise TraceError(f"{path}:{number}: a {kind!r} record without its time ('t')")
+    if not math.isfinite(record["t"]):
+        raise TraceError(f"{path}:{number}: a {kind!r} record at no real time ({record['t']})")
+    for key, types in OPTIONAL.get(kind, {}).items():
+        if key in record and not isinstance(record[key], types):
+            raise TraceError(f"{path}:{number}: a {kind!r} record whose {key!r} is "
+                             f"not {_describe(types)}")
     for key, types in REQUIRED.get(kind, {}).items():
         value = record.get(key)
         if not isinstance(value, types) or (isinstance(value, bool) and bool not in types):
@@ -147,5 +164,6 @@ def _parse(path: Path, number: int, raw: bytes) -> dict[str, Any]:
 
 
 def _describe(types: tuple[type, ...]) -> str:
-    names = {int: "a number", float: "a number", str: "text", bool: "true or false"}
+    names = {int: "a number", float: "a number", str: "text", bool: "true or false",
+             dict: "an object", list: "a list"}
     return " or ".join(dict.fromkeys(names.get(t, "null") for t in types))

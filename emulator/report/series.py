@@ -50,7 +50,7 @@ def bin_width(duration: float) -> float:
     for width in BIN_WIDTHS:
         if duration / width <= MAX_BINS:
             return width
-    return BIN_WIDTHS[-1]
+    return max(BIN_WIDTHS[-1], duration / MAX_BINS)  # a trace of years: still MAX_BINS bins
 
 
 def build_series(trace: Trace) -> Series:
