@@ -309,7 +309,11 @@ async def test_the_host_streams_a_job_exactly_once_through_faults(autojump_clock
     assert verify(list(enumerate(JOB, 1)), journal).passed(), journal
     ran = [canonical(line) for line in journal if line not in ("M115", "M114")]
     assert ran == [canonical(command) for command in JOB]
-    assert response and response[0].startswith("X:")
+    if not any(spec.startswith("to-host") for spec in faults):
+        # Damage toward the host can spoil M114's `ok 307`; its X: line then comes before the
+        # host knows M114 was taken, and is not M114's answer to it (1 run in 10 of trio's
+        # orders of ready tasks, which differ from run to run of the suite).
+        assert response and response[0].startswith("X:")
     if faults:
         assert summary.resends > 0
 
