@@ -213,16 +213,23 @@ class PrinterServer:
         if self._session is not None and data:
             if self._sampler is not None:
                 self._sampler.trace.bytes_in(data)
-                self._session.feed(data)
+                self._sampler.reading = True
+                try:
+                    self._session.feed(data)
+                finally:
+                    self._sampler.reading = False
                 self._sampler.look()
+                self._sampler.trace.write_queued()  # the answer is out: the host is busy
                 return
             self._session.feed(data)
 
     def _traced_deliver(self, data: bytes) -> None:
+        self.link.send(data)
         if self._sampler is not None and data:
             self._sampler.trace.bytes_out(data)
             self._sampler.look()
-        self.link.send(data)
+            if not self._sampler.reading:  # said on its own: write it now it has gone
+                self._sampler.trace.write_queued()
 
     def _new_connection(self) -> None:
         if self.trace is not None:

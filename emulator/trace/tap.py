@@ -1,8 +1,8 @@
 """Where the printer server's trace looks: the journal, the planner and the heaters.
 
 The server hands a traced run a TracedJournal in place of its journal, and looks at the
-printer (PrinterSampler.look) at each command and each read and write: the planner's room when
-it changed, the heaters when a sample is due. It looks from inside what happens anyway and
+printer (PrinterSampler.look) after each read it hands the session, and at each command and
+write outside one: the planner's room when it changed, the heaters when a sample is due. It looks from inside what happens anyway and
 starts no task of its own, so that a traced run is the same run, scheduled the same way
 (a scenario gives the same wire digest traced or not).
 """
@@ -11,15 +11,20 @@ import trio
 
 from fake_marlin.emulator.journal.writer import Journal
 from fake_marlin.emulator.printer.model import Printer
-from fake_marlin.emulator.trace.writer import Trace, heater_readings
+from fake_marlin.emulator.trace.writer import REJECTIONS, Trace, heater_readings
 
 
 class PrinterSampler:
     def __init__(self, trace: Trace, printer: Printer) -> None:
         self.trace = trace
         self.printer = printer
+        # While the session reads (the commands it runs there, their answers), looking waits
+        # for the read's end: once per read, not once per record.
+        self.reading = False
 
     def look(self) -> None:
+        if self.reading:
+            return
         now = trio.current_time()
         self.trace.room(self.printer.room(now))
         if self.trace.heaters_due(now, self._targets()):
@@ -40,8 +45,7 @@ class TracedJournal(Journal):
 
     def record(self, command: str) -> None:
         self._journal.record(command)
-        self._trace.command(command)
-        self._sampler.look()
+        self._trace.command(command)  # its answer, a write, looks at the printer
 
     def close(self) -> None:
         self._journal.close()
@@ -57,7 +61,7 @@ def watch_rejects(session: object, trace: Trace) -> None:
 
     def next_event_watched() -> object:
         event = next_event()
-        if event is not None:
+        if type(event) in REJECTIONS:
             trace.reject(event)
         return event
 

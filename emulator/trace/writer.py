@@ -10,6 +10,7 @@ import gzip
 import io
 import json
 import math
+import re
 import sys
 import time
 from typing import IO
@@ -23,6 +24,7 @@ from fake_marlin.emulator.protocols.repetier import CommandRejected
 from fake_marlin.emulator.protocols.ultimaker import PacketRejected
 
 VERSION = 1
+_BYTES_KINDS = frozenset(("in", "out"))
 # A printer killed mid-run (the field bug being chased) loses at most this many records: the
 # trace is flushed to the file after so many, and at each fault, refusal, reset and connection.
 FLUSH_EVERY = 256
@@ -36,6 +38,20 @@ class TraceError(Exception):
 
 def _text(data: bytes) -> str:
     return data.decode("latin-1")  # byte n is code point n: any byte survives JSON
+
+
+_NEEDS_DUMPS = re.compile(r'[\x00-\x09\x0b\x0c\x0e-\x1f"\\\x7f-\xff]')
+
+
+def _quoted(text: str) -> str:
+    """`text` as a JSON string: plain text and its line ends cheaply, the rest as json.dumps
+    writes it (most records are a line or two of printable ASCII)."""
+    if _NEEDS_DUMPS.search(text):
+        return json.dumps(text)
+    return '"' + text.replace("\r", "\\r").replace("\n", "\\n") + '"'
+
+
+REJECTIONS = frozenset((LineRejected, PacketRejected, CommandRejected, FrameRejected))
 
 
 def reject_facts(event: object) -> tuple[str, int | None] | None:
@@ -68,6 +84,7 @@ class Trace:
         self._closed = False
         self._last = 0.0
         self._unflushed = 0
+        self._queued: list[tuple[float, float, str, object]] = []
 
     @classmethod
     def open(cls, path: str, protocol: str, speed: float, seed: int, scenario: str | None = None,
@@ -87,24 +104,44 @@ class Trace:
                             "scenario": scenario, "printer": printer, "planner": planner}, path)
 
     # -- records ---------------------------------------------------------------------------
-    def _write(self, kind: str, fields: str = "") -> None:
+    # A record is queued with its times and what it says, and written by write_queued(), which
+    # the server calls once the printer has answered the read (or said what it says on its
+    # own): the formatting and the file write then overlap with the host's own work on that
+    # answer instead of delaying it.
+    def _queue(self, kind: str, payload: object) -> None:
         try:
             self._last = now = trio.current_time() - self._origin
         except RuntimeError:  # closed after trio.run returned: at the last moment it saw
             now = self._last
-        wall = time.monotonic() - self._wall_origin
-        if self._broken:
+        self._queued.append((now, time.monotonic() - self._wall_origin, kind, payload))
+
+    def _write(self, kind: str, fields: str = "") -> None:
+        self._queue(kind, fields)
+
+    def write_queued(self) -> None:
+        queued, self._queued = self._queued, []
+        if self._broken or not queued:
             return
+        lines = []
+        for now, wall, kind, payload in queued:
+            if kind in _BYTES_KINDS:
+                fields = f',"b":{_quoted(_text(payload))}'  # type: ignore[arg-type]
+            elif kind == "cmd":
+                fields = f',"c":{_quoted(payload)}'  # type: ignore[arg-type]
+            else:
+                fields = payload  # type: ignore[assignment]
+            lines.append(f'{{"t":{now:.6f},"w":{wall:.3f},"k":"{kind}"{fields}}}\n')
         try:
-            self._stream.write(f'{{"t":{now:.6f},"w":{wall:.3f},"k":"{kind}"{fields}}}\n')
+            self._stream.write("".join(lines))
         except OSError as error:
             self._give_up(error)
             return
-        self._unflushed += 1
+        self._unflushed += len(lines)
         if self._unflushed >= FLUSH_EVERY:
             self.flush()
 
     def flush(self) -> None:
+        self.write_queued()
         self._unflushed = 0
         if self._broken:
             return
@@ -126,15 +163,15 @@ class Trace:
 
     def bytes_in(self, data: bytes) -> None:
         self.bytes_in_count += len(data)
-        self._write("in", f',"b":{json.dumps(_text(data))}')
+        self._queue("in", data)
 
     def bytes_out(self, data: bytes) -> None:
         self.bytes_out_count += len(data)
-        self._write("out", f',"b":{json.dumps(_text(data))}')
+        self._queue("out", data)
 
     def command(self, text: str) -> None:
         self.commands += 1
-        self._write("cmd", f',"c":{json.dumps(text)}')
+        self._queue("cmd", text)
 
     def room(self, free: int) -> None:
         if free != self._room:
@@ -194,6 +231,7 @@ class Trace:
         self._closed = True
         self._write("end", f',"commands":{self.commands},"bytes_in":{self.bytes_in_count},'
                            f'"bytes_out":{self.bytes_out_count}')
+        self.write_queued()
         try:
             self._stream.close()
         except OSError as error:
