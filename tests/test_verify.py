@@ -227,6 +227,16 @@ def test_a_line_cut_short_at_a_damaged_star_ran_damaged():
     assert (problem.kind, problem.job_line) == (DAMAGED, 2)
 
 
+def test_a_line_shortened_by_drops_whose_xors_cancel_ran_damaged():
+    """Campaign 2032, case 448: `G1 X74 Y94 E80.00 F3000` lost a `4`, had a `0` flipped to `4`
+    and lost a `0` (0x34 ^ 0x04 ^ 0x30 = 0: XOR cannot see it), and ran as `G1 X74 Y9 E80.4`.
+    Shorter, but no line cut at a damaged `*`: it ran damaged, it was not lost."""
+    job = job_commands("G1 X54 Y94 E79.20 F3000\nG1 X74 Y94 E80.00 F3000\nG1 X74 Y74\n")
+    journal = ["G1 X54 Y94 E79.20 F3000", "G1 X74 Y9 E80.4 F3000", "G1 X74 Y74"]
+    (problem,) = verify(job, journal).problems
+    assert (problem.kind, problem.job_line, problem.ran_as) == (DAMAGED, 2, "G1 X74 Y9 E80.4 F3000")
+
+
 def test_a_line_whose_space_after_its_number_flipped_ran_damaged():
     """`N464!G1 X104 Y84 E366.40 G3000*15`: a space and an F, each one bit off, in the same bit."""
     job = job_commands("G1 X84 Y84\nG1 X104 Y84 E366.40 F3000\nG1 X104 Y104\n")
