@@ -181,16 +181,25 @@ def _trio_floor_row(bench: Bench, host: Host, job: list[str], path: Path) -> Row
 
 
 # -- 2. CPU per command ---------------------------------------------------------------------
+def _cpu_per_command(pair: tuple[list[Run], list[Run]]) -> tuple[list[float], list[float]] | None:
+    """Each side's printer CPU µs per command, round by round; None if a run was incomplete."""
+    if not pair[0] or not all(run.complete and run.printer_cpu is not None
+                              for side in pair for run in side):
+        return None
+    first, second = ([(run.printer_cpu or 0.0) / run.job * 1e6 for run in side] for side in pair)
+    return first, second
+
+
 def cpu(bench: Bench) -> Section:
     job, path = bench.throughput_job()
     section = Section("cpu", f"Printer CPU per command: our host, Marlin, {len(job)} moves",
                       ("process", "µs CPU per command", "bare responder"))
-    runs = bench.pair(our_host("marlin"), printer("marlin", "--speed", SPEED), BARE, job, path)
-    if not runs[0] or not all(run.complete and run.printer_cpu is not None
-                              for side in runs for run in side):
+    measured = _cpu_per_command(
+        bench.pair(our_host("marlin"), printer("marlin", "--speed", SPEED), BARE, job, path))
+    if measured is None:
         section.rows.append(Row("fake-marlin", "not measured: a run was incomplete"))
         return section
-    emulated, bare = ([(run.printer_cpu or 0.0) / run.job * 1e6 for run in side] for side in runs)
+    emulated, bare = measured
     mine, reference = statistics.median(emulated), statistics.median(bare)
     ratio = _paired_ratio(list(emulated), list(bare))
     data = {"fake_marlin_us": mine, "bare_us": reference, "rounds": len(emulated)}
@@ -200,10 +209,9 @@ def cpu(bench: Bench) -> Section:
     section.rows.append(Row("fake-marlin, absolute", f"{mine:.1f} µs", "—", None,
                             "≤ 100 µs (unloaded machine)", mine <= 100, data))
     section.rows.append(_trace_row(bench, job, path))
-    floor = bench.pair(our_host("marlin"), BARE_ON_TRIO, BARE, job, path)
-    if all(run.complete and run.printer_cpu is not None for side in floor for run in side):
-        on_trio, plain = ([(run.printer_cpu or 0.0) / run.job * 1e6 for run in side]
-                          for side in floor)
+    floor = _cpu_per_command(bench.pair(our_host("marlin"), BARE_ON_TRIO, BARE, job, path))
+    if floor is not None:
+        on_trio, plain = floor
         section.rows.append(Row(
             "bare responder on trio", f"{statistics.median(on_trio):.1f} µs",
             f"{statistics.median(plain):.1f} µs", _paired_ratio(list(on_trio), list(plain)),
@@ -224,10 +232,10 @@ def _trace_row(bench: Bench, job: list[str], path: Path) -> Row:
     plain = printer("marlin", "--speed", SPEED)
     traced = Target(f"{plain.label} --trace", [*plain.argv, "--trace", str(trace)])
     runs = bench.pair(our_host("marlin"), traced, plain, job, path)
-    if not all(run.complete and run.printer_cpu is not None for side in runs for run in side):
+    measured = _cpu_per_command(runs)
+    if measured is None:
         return Row("fake-marlin --trace FILE", "not measured: a run was incomplete")
-    with_trace, without = ([(run.printer_cpu or 0.0) / run.job * 1e6 for run in side]
-                           for side in runs)
+    with_trace, without = measured
     speed = _paired_ratio(*([run.rate for run in side] for side in runs))
     size = trace.stat().st_size * 1000 / len(job) if trace.exists() else None
     return Row(
