@@ -115,9 +115,6 @@ class Trace:
             now = self._last
         self._queued.append((now, time.monotonic() - self._wall_origin, kind, payload))
 
-    def _write(self, kind: str, fields: str = "") -> None:
-        self._queue(kind, fields)
-
     def write_queued(self) -> None:
         queued, self._queued = self._queued, []
         if self._broken or not queued:
@@ -159,7 +156,7 @@ class Trace:
     def begin(self) -> None:
         """The printer powers on: `t` counts from now."""
         self._origin = trio.current_time()
-        self._write("begin", "," + json.dumps(self._facts, separators=(",", ":"))[1:-1])
+        self._queue("begin", "," + json.dumps(self._facts, separators=(",", ":"))[1:-1])
 
     def bytes_in(self, data: bytes) -> None:
         self.bytes_in_count += len(data)
@@ -176,7 +173,7 @@ class Trace:
     def room(self, free: int) -> None:
         if free != self._room:
             self._room = free
-            self._write("room", f',"v":{free}')
+            self._queue("room", f',"v":{free}')
 
     def heaters_due(self, now: float, targets: tuple[float, ...]) -> bool:
         """Whether to sample the heaters now: a target changed, or a sample is due while a
@@ -187,7 +184,7 @@ class Trace:
 
     def heaters(self, now: float, readings: list[tuple[str, float, float]]) -> None:
         for name, current, target in readings:
-            self._write("temp", f',"h":"{name}","c":{current:.2f},"s":{target:g}')
+            self._queue("temp", f',"h":"{name}","c":{current:.2f},"s":{target:g}')
         self._targets = tuple(target for _, _, target in readings)
         self._in_use = heaters_in_use(readings)
         self._next_sample = now + SAMPLE_INTERVAL
@@ -199,37 +196,37 @@ class Trace:
             fields += f',"n":{count}'
         if unit is not None:
             fields += f',"u":{json.dumps(_text(unit[:_UNIT_TEXT]))}'
-        self._write("fault", fields)
+        self._queue("fault", fields)
         self.flush()
 
     def reject(self, event: object) -> None:
         facts = reject_facts(event)
         if facts is not None:
             why, resend = facts
-            self._write("reject", f',"why":{json.dumps(why)},"resend":{json.dumps(resend)}')
+            self._queue("reject", f',"why":{json.dumps(why)},"resend":{json.dumps(resend)}')
             self.flush()
 
     def reset(self, why: str) -> None:
         self._room = None
-        self._write("reset", f',"why":{json.dumps(why)}')
+        self._queue("reset", f',"why":{json.dumps(why)}')
         self.flush()
 
     def connect(self) -> None:
-        self._write("connect")
+        self._queue("connect", "")
         self.flush()
 
     def disconnect(self, seconds: float) -> None:
-        self._write("disconnect", f',"seconds":{seconds:g}')
+        self._queue("disconnect", f',"seconds":{seconds:g}')
         self.flush()
 
     def verdict(self, facts: dict[str, object]) -> None:
-        self._write("verdict", "," + json.dumps(facts, separators=(",", ":"))[1:-1])
+        self._queue("verdict", "," + json.dumps(facts, separators=(",", ":"))[1:-1])
 
     def close(self) -> None:
         if self._closed:
             return
         self._closed = True
-        self._write("end", f',"commands":{self.commands},"bytes_in":{self.bytes_in_count},'
+        self._queue("end", f',"commands":{self.commands},"bytes_in":{self.bytes_in_count},'
                            f'"bytes_out":{self.bytes_out_count}')
         self.write_queued()
         try:
