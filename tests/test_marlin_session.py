@@ -192,3 +192,29 @@ async def test_curas_probe_finds_ok_and_t_on_one_line(autojump_clock):
         terminal = Terminal(cura)
         lines = await terminal.read_until(lambda line: "ok" in line and "T:" in line, timeout=5)
         assert lines[0] == "start" and len([line for line in lines if line.startswith("ok")]) == 1
+
+
+async def test_a_move_answered_before_planning_is_the_move_of_the_general_path(autojump_clock):
+    """`G1 X..` with room in the planner gets its `ok` before it is planned; `G1X..` takes the
+    general path. The host sees the same: each `ok` at the same moment (a full planner holds
+    both back alike), the same position, the same time to drain, the same journal."""
+    moves = [f"X{10 + 5 * (i % 7)} Y{20 + 3 * (i % 5)} E{i} F{600 + 600 * (i % 4)}"
+             for i in range(40)]
+
+    async def print_moves(word: str) -> tuple[list, list[str], float, list[str]]:
+        async with marlin() as (terminal, running):
+            start = trio.current_time()
+            oks = []
+            for move in moves:
+                said = await terminal.command(f"{word}{move}")
+                oks.append((round(trio.current_time() - start, 9), said))
+            position = await terminal.command("M114")
+            await terminal.command("M400")
+            journal = [line.replace(word, "G1 ", 1) for line in running.journal]
+            return oks, position, round(trio.current_time() - start, 9), journal
+
+    fast, general = await print_moves("G1 "), await print_moves("G1")
+    assert fast == general
+    times = [at for at, _ in fast[0]]
+    assert times[-1] > times[0] + 10  # the planner filled: later moves waited for room
+    assert fast[2] > times[-1] + 5 and len(fast[3]) == len(moves) + 2

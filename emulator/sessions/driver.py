@@ -34,8 +34,10 @@ class CommandRun:
         self.on_report = on_report
         self.reply = Reply()
         self._halted_before = printer.halted
-        self._steps = printer.execute(line, trio.current_time(), command)
+        self.started_at = trio.current_time()  # the model's `now` for it, however late it runs
+        self._steps = printer.execute(line, self.started_at, command)
         self._started = False
+        self._recorded = False
 
     def advance(self) -> float | None:
         """Run on until the model waits (return when it may go on) or the command is done."""
@@ -52,7 +54,7 @@ class CommandRun:
                 step = self._steps.send(trio.current_time())
         except StopIteration as finished:
             self.reply = finished.value
-        self._record()
+        self.record()
         return None
 
     @property
@@ -64,7 +66,13 @@ class CommandRun:
         self._steps.close()
         self.reply = Reply()
 
-    def _record(self) -> None:
+    def record(self) -> None:
+        """Into the journal, once: when it completes, or before it runs for a command that is
+        sure to complete at once (a move the planner has room for), so that its `ok`, which
+        must follow the journal, can go out before the model does the work."""
+        if self._recorded:
+            return
+        self._recorded = True
         executed = strip_comment(self.line)
         if executed and (not self.killed or parse(executed).code == "M112"):
             self.journal.record(executed)

@@ -21,6 +21,8 @@ from fake_marlin.emulator.sessions.driver import CommandRun, finish, hold_queue_
 from fake_marlin.emulator.sessions.marlin_binary import BinaryTransfer
 
 BUSY_INTERVAL = 2.0  # HOST_KEEPALIVE default; M113 changes it
+# Straight moves as hosts send them (G10, `G1X5` and `g1` take the general path).
+PLAIN_MOVES = ("G1 ", "G0 ")
 
 
 def boot_lines(printer: Printer, reason: str) -> list[str]:
@@ -161,10 +163,19 @@ class MarlinSession:
             sd.write_line(received.text)  # M28 stores lines instead of running them
             self._send(self.protocol.send(Ok(received.line_number, planner_free=self._room())))
             return
-        command = parse(received.text)
-        run = self._start(received.text, command)
-        if run is None:
-            return
+        if received.text.startswith(PLAIN_MOVES) and not self.protocol.advanced_ok:
+            run = self._start(received.text, None)  # parsed as it runs
+            if run is None:
+                return
+            if self.printer.room(run.started_at) > 0:
+                self._move_at_once(received, run)
+                return
+            command = parse(received.text)
+        else:
+            command = parse(received.text)
+            run = self._start(received.text, command)
+            if run is None:
+                return
         until = run.advance()
         if until is None:
             self._done(received, command, run.reply)
@@ -172,6 +183,16 @@ class MarlinSession:
             self._executor_idle = False
             self._waiting = (received, command, run, until)
             self._work.set()
+
+    def _move_at_once(self, received: LineReceived, run: CommandRun) -> None:
+        """A straight move the planner has room for completes at once and prints nothing, so
+        its `ok` goes out first and the planning after it, while the host is busy reading the
+        `ok` and sending the next line: the host sees the same bytes, sooner. The journal has
+        the move before its `ok`, as always, and the model plans it at the time it arrived."""
+        run.record()
+        self._done(received, None, Reply())
+        if run.advance() is not None:
+            raise AssertionError(f"{received.text!r} waited with room in the planner")
 
     async def _carry_on(
         self, received: LineReceived, command: Command, run: CommandRun, until: float
@@ -182,7 +203,7 @@ class MarlinSession:
             return
         self._done(received, command, reply)
 
-    def _start(self, text: str, command: Command) -> CommandRun | None:
+    def _start(self, text: str, command: Command | None) -> CommandRun | None:
         self._before_command(text)
         if self.printer.halted:
             return None
@@ -199,12 +220,14 @@ class MarlinSession:
         finally:
             self._set_busy(False)
 
-    def _done(self, received: LineReceived, command: Command, reply: Reply) -> None:
+    def _done(self, received: LineReceived, command: Command | None, reply: Reply) -> None:
+        """`command` None: a move (_move_at_once), which has no effect on the protocol."""
         if self.printer.halted:
             self.announce(reply.lines)
             self._wake()
             return
-        self._protocol_effects(command)
+        if command is not None:
+            self._protocol_effects(command)
         self.announce(reply.lines)
         self._send(
             self.protocol.send(Ok(received.line_number, reply.ok_suffix, planner_free=self._room()))
