@@ -249,6 +249,8 @@ class PrinterServer:
     # -- faults that fire on a command or at a moment ------------------------------------
     def _before_command(self, text: str) -> None:
         plan = self.faults.plan
+        if not plan.rules:
+            return  # the usual printer: nothing to look for on its way to the `ok`
         for index, rule in plan.printer_rules():
             if plan.fires(index, text):
                 self._printer_fault(rule)
