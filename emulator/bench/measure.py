@@ -42,6 +42,8 @@ from fake_marlin.host.codecs import ultimaker as ultimaker_codec
 from fake_marlin.wire import ultimaker as ultimaker_wire
 
 SPEED = "1000"  # simulated time for throughput runs: the moves never limit the rate
+# The M115 capabilities that make a host ask for reports at intervals; the bare responder has none.
+AUTOREPORTS = ("AUTOREPORT_TEMP", "AUTOREPORT_POS", "AUTOREPORT_SD_STATUS")
 WIRE_BAUD = 250000
 BAUD_SPEED = 100
 LATENCY_MS = 30.0
@@ -127,9 +129,11 @@ def hosts(bench: Bench) -> Section:
                          if rounds > 1 else "one round"),
                       ("host", "cmd/s to fake-marlin", "cmd/s to bare responder"))
     # The same capabilities as the responder's, so that a host does the same work against
-    # both: told AUTOREPORT_TEMP, OctoPrint turns on M155 S2, whose reports come every 2 ms of
-    # wall time at --speed 1000, and it would be timing its own reading of those.
-    marlin = printer("marlin", "--speed", SPEED, "--capability", "AUTOREPORT_TEMP=0")
+    # both: told of auto-reports, OctoPrint turns on M155 S2, M154 S5 and M27 S1, whose
+    # intervals are simulated seconds (a position every 5 ms of wall time at --speed 1000),
+    # and it would be timing its own reading of those.
+    marlin = printer("marlin", "--speed", SPEED,
+                     *(f"--capability={name}=0" for name in AUTOREPORTS))
     for host in (our_host("marlin"), octoprint(), printcore()):
         if host.command is None:
             section.rows.append(Row(host.label, host.missing, data={"host": host.key,
@@ -164,8 +168,8 @@ def hosts(bench: Bench) -> Section:
                          "(fake_marlin.emulator.bench.responder) answers each line at once and "
                          "simulates nothing; every host and printer is a process of its own; "
                          "the time is the job's alone (connecting excluded); both advertise "
-                         "the same capabilities (no AUTOREPORT_TEMP), so each host does the "
-                         "same work against both")
+                         "the same capabilities (no AUTOREPORT_TEMP, _POS or _SD_STATUS), so "
+                         "each host does the same work against both")
     return section
 
 
