@@ -167,6 +167,17 @@ async def test_sd_card_listing_printing_uploading_and_deleting(tmp_path, autojum
         assert not (tmp_path / "escape.gco").exists()
 
 
+async def test_m27_s_reports_sd_status_every_interval_with_or_without_a_file(autojump_clock):
+    """Marlin's AutoReporter calls report_status() at each interval whatever is selected, so a
+    host that turned it on (OctoPrint sends M27 S1) hears `Not SD printing` while idle."""
+    async with marlin() as (terminal, _):
+        assert await terminal.command("M27 S1") == ["ok"]
+        heard = await terminal.quiet_for(3.5)
+        assert heard == ["Not SD printing"] * 4  # at once, then every second
+        assert await terminal.command("M27 S0") == ["ok"]
+        assert await terminal.quiet_for(3) == []
+
+
 async def test_auto_detection_follows_the_first_bytes_on_every_open(autojump_clock):
     async with running_printer(ServerConfig(protocol="auto")) as running:
         text_host = Terminal(running.link.open_host())

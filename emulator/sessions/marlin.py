@@ -310,5 +310,5 @@ class MarlinSession:
             self._say(" " + self.printer.temperature_report(now))
         elif kind == "position":
             self._say(self.printer.position_report(now).split(" Count")[0])
-        elif self.printer.sd.selected is not None:
+        else:  # CardReader::report_status(), file or none: `Not SD printing` while idle
             self._say(self.printer.sd.status())
