@@ -56,10 +56,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         trace = read_trace(args.trace)
         page = render_report(trace, job, Path(args.job).name if args.job else "the job")
-    except TraceError as error:
-        print(f"{PROG}: {error}", file=sys.stderr)
-        return 2
-    except MissingPlotting as error:
+    except (TraceError, MissingPlotting) as error:
         print(f"{PROG}: {error}", file=sys.stderr)
         return 2
     out = Path(args.output) if args.output else Path(args.trace).with_name(f"{trace.name}.html")

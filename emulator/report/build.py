@@ -23,34 +23,34 @@ class MissingPlotting(RuntimeError):
 def require_plotting() -> None:
     try:
         import matplotlib  # noqa: F401
-    except ModuleNotFoundError as error:
-        if error.name != "matplotlib":
-            raise MissingPlotting(f"reports need matplotlib, which does not load ({error}): "
-                                  f"{INSTALL_HINT}") from None
-        raise MissingPlotting(f"reports need matplotlib, which is not installed: {INSTALL_HINT}") from None
-    except ImportError as error:
-        raise MissingPlotting(f"reports need matplotlib, which does not load ({error}): "
-                              f"{INSTALL_HINT}") from None
+    except ImportError as error:  # ModuleNotFoundError too, for matplotlib or what it needs
+        missing = isinstance(error, ModuleNotFoundError) and error.name == "matplotlib"
+        why = "which is not installed" if missing else f"which does not load ({error})"
+        raise MissingPlotting(f"reports need matplotlib, {why}: {INSTALL_HINT}") from None
 
 
 def render_report(trace: Trace, job: str | None = None, job_name: str = "the job") -> str:
     """The HTML page for one trace; `job`: the G-code it ran, to judge exactly-once by."""
+    return _render(trace, summarise(trace, job, job_name))
+
+
+def _render(trace: Trace, summary: Summary) -> str:
     require_plotting()
     from fake_marlin.emulator.report.page import render_page
     from fake_marlin.emulator.report.plots import figure_svg
 
     svg = figure_svg(build_series(trace))
     kinds, rows = log_rows(trace)
-    return render_page(summarise(trace, job, job_name), svg, kinds, rows, trace.path.name)
+    return render_page(summary, svg, kinds, rows, trace.path.name)
 
 
 def write_report(trace_path: Path, out: Path, job: str | None = None, job_name: str = "the job") -> Summary:
     """Read the trace, write its page to `out`; TraceError if the trace cannot be read, OSError
     if the page cannot be written."""
     trace = read_trace(trace_path)
-    page = render_report(trace, job, job_name)
-    out.write_text(page, encoding="utf-8")
-    return summarise(trace, job, job_name)
+    summary = summarise(trace, job, job_name)
+    out.write_text(_render(trace, summary), encoding="utf-8")
+    return summary
 
 
 @dataclass(frozen=True)
@@ -81,8 +81,9 @@ def write_reports(traces: list[Path], outdir: Path) -> Path:
             number += 1
             name = f"{trace.name}-{number}.html"
         taken.add(name)
-        (outdir / name).write_text(render_report(trace), encoding="utf-8")
-        entries.append(_Entry(path, name, summarise(trace), None))
+        summary = summarise(trace)
+        (outdir / name).write_text(_render(trace, summary), encoding="utf-8")
+        entries.append(_Entry(path, name, summary, None))
     index = outdir / "index.html"
     index.write_text(_index_page(entries), encoding="utf-8")
     return index
