@@ -7,6 +7,7 @@ import re
 from dataclasses import dataclass, field
 
 from fake_marlin.emulator.report.reader import Trace
+from fake_marlin.emulator.report.wirelog import describe
 
 # Bin widths for commands per second, in simulated seconds: the smallest that keeps a trace
 # to at most MAX_BINS bins, so an hour's print is as readable as a minute's.
@@ -20,7 +21,7 @@ ERROR_LINE = re.compile(r"(?:Proto)?Error:")
 @dataclass(frozen=True)
 class Mark:
     t: float
-    label: str  # what a person reads for it: the reason, the fault's size, the reset's cause
+    label: str  # what a person reads for it, as the wire log says it (wirelog.describe)
 
 
 @dataclass
@@ -82,19 +83,19 @@ def build_series(trace: Trace) -> Series:
                 heater.current.append(float(record["c"]))
                 heater.target.append(float(record["s"]))
             case "reject":
-                resends.append(Mark(t, _reject_label(record)))
+                resends.append(Mark(t, describe(record)))
             case "out":
                 *lines, pending = (pending + record["b"]).split("\n")
                 errors += [Mark(t, line.strip()) for line in lines if ERROR_LINE.match(line.strip())]
             case "fault":
-                faults.setdefault(record["f"], []).append(Mark(t, fault_label(record)))
+                faults.setdefault(record["f"], []).append(Mark(t, describe(record)))
             case "reset":
-                resets.append(Mark(t, str(record.get("why", "")).strip()))
+                resets.append(Mark(t, describe(record)))
                 pending = ""
             case "connect":
-                connects.append(Mark(t, "a host opened the port"))
+                connects.append(Mark(t, describe(record)))
             case "disconnect":
-                disconnects.append(Mark(t, f"line dead for {record.get('seconds', '?')} s"))
+                disconnects.append(Mark(t, describe(record)))
     marks = {"resends": resends, "errors": errors}
     marks.update((f"fault: {kind}", found) for kind, found in faults.items())
     marks.update({"disconnects": disconnects, "resets": resets, "connects": connects})
@@ -106,23 +107,6 @@ def build_series(trace: Trace) -> Series:
         heaters=dict(sorted(heaters.items(), key=lambda item: _heater_order(item[0]))),
         marks=marks,
     )
-
-
-def fault_label(record: dict) -> str:
-    parts = [str(record["f"])]
-    if record.get("dir"):
-        parts.append(str(record["dir"]))
-    if record.get("n") is not None:
-        parts.append(f"n={record['n']}")
-    if record.get("u") is not None:
-        parts.append(f"on {record['u']!r}")
-    return " ".join(parts)
-
-
-def _reject_label(record: dict) -> str:
-    why = str(record.get("why") or "rejected")
-    resend = record.get("resend")
-    return why if resend is None else f"{why}; resend {resend}"
 
 
 def _heater_order(name: str) -> tuple[int, int, str]:

@@ -11,6 +11,7 @@ from dataclasses import dataclass, field
 from fake_marlin.emulator.journal.verify import Kind, job_commands, verify
 from fake_marlin.emulator.report.reader import Trace
 from fake_marlin.emulator.report.series import ERROR_LINE
+from fake_marlin.emulator.report.wirelog import describe
 
 # What a byte fault's `n` counts, for "37 bits flipped".
 UNITS = {"bit-errors": "bits flipped", "drop-bytes": "bytes dropped", "corrupt-lines": "lines corrupted"}
@@ -96,7 +97,7 @@ def summarise(trace: Trace, job: str | None = None, job_name: str = "the job") -
         host_resends=host.get("resends") if isinstance(host.get("resends"), int) else None,
         timeouts=host.get("timeouts") if isinstance(host.get("timeouts"), int) else None,
         faults=_faults(faults),
-        resets=[str(r.get("why", "")).strip() for r in records if r["k"] == "reset"],
+        resets=[describe(r) for r in records if r["k"] == "reset"],
         connects=counts["connect"],
         disconnects=counts["disconnect"],
         verdict=_verdict(trace, commands, job, job_name),

@@ -8,7 +8,6 @@ CommStack frames) read as what they are, byte for byte.
 import json
 
 from fake_marlin.emulator.report.reader import Trace
-from fake_marlin.emulator.report.series import fault_label
 
 # The kinds as the log's filters name them, in the order they are offered.
 LABELS = {
@@ -38,7 +37,19 @@ def show_bytes(data: str) -> str:
     return "".join(_SHOWN[ord(char)] if ord(char) < 256 else f"\\u{ord(char):04x}" for char in data)
 
 
+def _fault_label(record: dict) -> str:
+    parts = [str(record["f"])]
+    if record.get("dir"):
+        parts.append(str(record["dir"]))
+    if record.get("n") is not None:
+        parts.append(f"n={record['n']}")
+    if record.get("u") is not None:
+        parts.append(f"on {record['u']!r}")
+    return " ".join(parts)
+
+
 def describe(record: dict) -> str:
+    """A record as a person reads it: in the log, and as the label of its mark on the plot."""
     match record["k"]:
         case "in" | "out":
             return show_bytes(record["b"])
@@ -49,7 +60,7 @@ def describe(record: dict) -> str:
         case "temp":
             return f"{record['h']} {float(record['c']):.1f} °C, target {float(record['s']):g} °C"
         case "fault":
-            return fault_label(record)
+            return _fault_label(record)
         case "reject":
             resend = record.get("resend")
             return f"{record.get('why') or 'rejected'}" + ("" if resend is None else f"; resend {resend}")
@@ -72,7 +83,7 @@ def describe(record: dict) -> str:
 
 def log_rows(trace: Trace) -> tuple[list[str], list[list[object]]]:
     """(kinds, rows): each row [t, index into kinds, text], in trace order."""
-    kinds = [kind for kind in LABELS]
+    kinds = list(LABELS)
     index = {kind: i for i, kind in enumerate(kinds)}
     rows: list[list[object]] = []
     for record in [trace.begin, *trace.records]:
