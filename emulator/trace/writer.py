@@ -13,7 +13,8 @@ import math
 import re
 import sys
 import time
-from typing import IO
+from collections.abc import Callable
+from typing import IO, Any
 
 import trio
 
@@ -51,21 +52,21 @@ def _quoted(text: str) -> str:
     return '"' + text.replace("\r", "\\r").replace("\n", "\\n") + '"'
 
 
-REJECTIONS = frozenset((LineRejected, PacketRejected, CommandRejected, FrameRejected))
+# Each protocol's refusal event, and why it refused and the number it asked for.
+_REJECT_FACTS: dict[type, Callable[[Any], tuple[str, int | None]]] = {
+    LineRejected: lambda event: (event.error.name.lower().replace("_", " "), event.resend),
+    PacketRejected: lambda event: (event.reason.name.lower().replace("_", " "), event.expected),
+    CommandRejected: lambda event: (event.reason, event.resend),
+    FrameRejected: lambda event: (event.reason, None),
+}
+REJECTIONS = frozenset(_REJECT_FACTS)  # what watch_rejects looks for in a protocol's events
 
 
 def reject_facts(event: object) -> tuple[str, int | None] | None:
     """Why a protocol event refused what it got, and the number it asked for; None for an
     event that refuses nothing."""
-    if isinstance(event, LineRejected):
-        return event.error.name.lower().replace("_", " "), event.resend
-    if isinstance(event, PacketRejected):
-        return event.reason.name.lower().replace("_", " "), event.expected
-    if isinstance(event, CommandRejected):
-        return event.reason, event.resend
-    if isinstance(event, FrameRejected):
-        return event.reason, None
-    return None
+    facts = _REJECT_FACTS.get(type(event))
+    return None if facts is None else facts(event)
 
 
 class Trace:
