@@ -1,10 +1,10 @@
 """Where the printer server's trace looks: the journal, the planner and the heaters.
 
 The server hands a traced run a TracedJournal in place of its journal, and looks at the
-printer (PrinterSampler.look) after each read it hands the session, and at each command and
-write outside one: the planner's room when it changed, the heaters when a sample is due. It looks from inside what happens anyway and
-starts no task of its own, so that a traced run is the same run, scheduled the same way
-(a scenario gives the same wire digest traced or not).
+printer (PrinterSampler.look) after each read it hands the session, and at each write outside
+one: the planner's room when it changed, the heaters when a sample is due. It looks from inside
+what happens anyway and starts no task of its own, so that a traced run is the same run,
+scheduled the same way (a scenario gives the same wire digest traced or not).
 """
 
 import trio

@@ -1,9 +1,11 @@
 """The wire trace: what crossed the wire and what the printer did, as JSON lines (docs/trace.md).
 
-The printer server calls one method per thing that happened; each writes one line at once into
-a buffered file. Times are read here, from trio's clock (simulated, repeatable) and the wall
-clock (only for the `w` field, which says how the run went in real time). A trace costs the
-printer nothing when it is off: the server only calls in here when one was asked for.
+The printer server calls one method per thing that happened; each queues one record, and
+write_queued() writes them once the printer has answered (flush() also pushes them to the file,
+after FLUSH_EVERY records and at each fault, refusal, reset and connection). Times are read here,
+from trio's clock (simulated, repeatable) and the wall clock (only for the `w` field, which says
+how the run went in real time). A trace costs the printer nothing when it is off: the server
+only calls in here when one was asked for.
 """
 
 import gzip
