@@ -70,7 +70,7 @@ class Bench:
         """`rounds` runs against each target, alternating which goes first (ABBA...) so that
         the machine's drift during the pair falls on both alike. Cached per host: the hosts and
         cpu sections share our Marlin host's runs."""
-        key = f"{host.key}:{first.label}:{second.label}:{len(job)}"
+        key = f"{host.key}:{first.argv}:{second.argv}:{len(job)}"
         if key not in self._pairs:
             firsts: list[Run] = []
             seconds: list[Run] = []
@@ -121,6 +121,15 @@ HOST_GOALS = {"ours-marlin": 0.9, "octoprint": 0.95}
 ULTIMAKER_GOAL = 5000.0
 
 
+def _throughput_printer() -> Target:
+    """fake-marlin as the hosts and cpu sections stream to it (one target, so that they share
+    our host's runs), with the same capabilities as the responder's, so that a host does the
+    same work against both: told of auto-reports, OctoPrint turns on M155 S2, M154 S5 and M27
+    S1, whose intervals are simulated seconds (a position every 5 ms of wall time at --speed
+    1000), and it would be timing its own reading of those."""
+    return printer("marlin", "--speed", SPEED, *(f"--capability={name}=0" for name in AUTOREPORTS))
+
+
 def hosts(bench: Bench) -> Section:
     job, path = bench.throughput_job()
     rounds = bench.options.rounds
@@ -128,12 +137,7 @@ def hosts(bench: Bench) -> Section:
                       + (f"median of {rounds} rounds (a ratio: of each round's pair)"
                          if rounds > 1 else "one round"),
                       ("host", "cmd/s to fake-marlin", "cmd/s to bare responder"))
-    # The same capabilities as the responder's, so that a host does the same work against
-    # both: told of auto-reports, OctoPrint turns on M155 S2, M154 S5 and M27 S1, whose
-    # intervals are simulated seconds (a position every 5 ms of wall time at --speed 1000),
-    # and it would be timing its own reading of those.
-    marlin = printer("marlin", "--speed", SPEED,
-                     *(f"--capability={name}=0" for name in AUTOREPORTS))
+    marlin = _throughput_printer()
     for host in (our_host("marlin"), octoprint(), printcore()):
         if host.command is None:
             section.rows.append(Row(host.label, host.missing, data={"host": host.key,
@@ -199,7 +203,7 @@ def cpu(bench: Bench) -> Section:
     section = Section("cpu", f"Printer CPU per command: our host, Marlin, {len(job)} moves",
                       ("process", "µs CPU per command", "bare responder"))
     measured = _cpu_per_command(
-        bench.pair(our_host("marlin"), printer("marlin", "--speed", SPEED), BARE, job, path))
+        bench.pair(our_host("marlin"), _throughput_printer(), BARE, job, path))
     if measured is None:
         section.rows.append(Row("fake-marlin", "not measured: a run was incomplete"))
         return section
@@ -233,7 +237,7 @@ def cpu(bench: Bench) -> Section:
 def _trace_row(bench: Bench, job: list[str], path: Path) -> Row:
     """What writing a trace costs the printer: the same job, traced and not, side by side."""
     trace = bench.workdir / "bench.trace.jsonl"
-    plain = printer("marlin", "--speed", SPEED)
+    plain = _throughput_printer()
     traced = Target(f"{plain.label} --trace", [*plain.argv, "--trace", str(trace)])
     runs = bench.pair(our_host("marlin"), traced, plain, job, path)
     measured = _cpu_per_command(runs)
