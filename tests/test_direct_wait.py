@@ -1,0 +1,199 @@
+"""A link waiting for its next bytes straight in poll(2) while trio is idle (link/direct_wait.py):
+it must save trio's round per command, and never delay or starve anything trio would have run.
+
+These run on trio's real clock, with a thread as the host on the other end of a pipe: the direct
+wait is only taken where trio would block in epoll_wait itself, which an autojump clock never
+does.
+"""
+
+import os
+import threading
+from collections.abc import Iterator
+from contextlib import contextmanager
+
+import pytest
+import trio
+
+from fake_marlin.emulator.link import direct_wait
+from fake_marlin.emulator.link.direct_wait import DirectWait, direct_waits_available
+
+HOST_GIVES_UP = 10.0  # seconds: a wait that hangs fails the test instead of the suite
+
+
+@contextmanager
+def pipes() -> Iterator[tuple[int, int, int, int]]:
+    """(printer reads, host writes, host reads, printer writes)."""
+    to_printer_r, to_printer_w = os.pipe()
+    to_host_r, to_host_w = os.pipe()
+    os.set_blocking(to_printer_r, False)
+    try:
+        yield to_printer_r, to_printer_w, to_host_r, to_host_w
+    finally:
+        for fd in (to_printer_r, to_printer_w, to_host_r, to_host_w):
+            os.close(fd)
+
+
+def start_thread(target, *args) -> threading.Thread:
+    thread = threading.Thread(target=target, args=args, daemon=True)
+    thread.start()
+    return thread
+
+
+@pytest.fixture
+def trio_waits(monkeypatch) -> list[int]:
+    """The fds waited for through trio's own wait_readable, in order."""
+    waited: list[int] = []
+    real = trio.lowlevel.wait_readable
+
+    async def counting(fd):
+        waited.append(fd)
+        await real(fd)
+
+    monkeypatch.setattr(direct_wait.trio.lowlevel, "wait_readable", counting)
+    return waited
+
+
+async def test_the_installed_trio_lets_a_link_wait_directly():
+    # If this fails, trio's internals changed shape: every wait still works, through trio,
+    # and fake-marlin costs a scheduler round per command again (see link/direct_wait.py).
+    assert direct_waits_available()
+
+
+async def test_a_host_sending_a_line_at_a_time_costs_no_trip_through_trio(trio_waits):
+    lines = 200
+    with pipes() as (printer_in, host_out, host_in, printer_out):
+        def host() -> None:
+            for number in range(lines):
+                os.write(host_out, b"G1 X%d\n" % number)
+                assert os.read(host_in, 16) == b"ok\n"
+
+        wait = DirectWait(printer_in)
+        thread = start_thread(host)
+        with trio.fail_after(HOST_GIVES_UP):
+            for _ in range(lines):
+                await wait.readable()
+                assert os.read(printer_in, 64).startswith(b"G1 X")
+                os.write(printer_out, b"ok\n")
+        thread.join()
+    # The first wait, before the loop was alone, may go through trio; the steady state never.
+    assert trio_waits.count(printer_in) <= 2
+
+
+async def test_a_task_woken_with_the_waiter_runs_before_the_waiter_blocks():
+    # Woken in one batch, the other task sits in trio's loop, not in its run queue: the waiter
+    # must not block in poll(2) ahead of it. Here that task is the only one that makes the fd
+    # readable, so a wrong wait sleeps until the watchdog writes. Trio runs a batch in either
+    # order, so the waiter goes first in some of the rounds.
+    with pipes() as (printer_in, host_out, _, _):
+        wait = DirectWait(printer_in)  # one, as a link has: what it knows must not mislead it
+        for _ in range(12):
+            go = trio.Event()
+            order: list[str] = []
+
+            async def waiter() -> None:
+                await go.wait()
+                await wait.readable()
+                order.append("readable")
+
+            async def writer() -> None:
+                await go.wait()
+                order.append("writer ran")
+                os.write(host_out, b"x")
+
+            watchdog = threading.Timer(2.0, os.write, (host_out, b"w"))
+            watchdog.start()
+            try:
+                async with trio.open_nursery() as nursery:
+                    nursery.start_soon(waiter)
+                    nursery.start_soon(writer)
+                    await trio.sleep(0.001)
+                    go.set()
+            finally:
+                watchdog.cancel()
+            assert order == ["writer ran", "readable"]
+            os.read(printer_in, 16)
+
+
+async def wait_while(host, *tasks) -> list[str]:
+    """The printer waits for its fd while `tasks` wait for theirs and the host thread acts;
+    what happened, in order."""
+    with pipes() as (printer_in, host_out, _, _):
+        order: list[str] = []
+        with trio.fail_after(HOST_GIVES_UP):
+            async with trio.open_nursery() as nursery:
+                for task in tasks:
+                    nursery.start_soon(task, order)
+                await trio.sleep(0.01)  # each waits now
+                start_thread(host, host_out)
+                await DirectWait(printer_in).readable()
+                order.append("printer")
+        return order
+
+
+def printer_bytes_after(seconds: float):
+    def host(host_out: int) -> None:
+        threading.Event().wait(seconds)
+        os.write(host_out, b"G28\n")
+    return host
+
+
+async def test_a_timer_fires_on_time_while_the_link_waits_directly():
+    async def sleeper(order: list[str]) -> None:
+        await trio.sleep(0.1)
+        order.append("timer")
+
+    assert await wait_while(printer_bytes_after(0.6), sleeper) == ["timer", "printer"]
+
+
+async def test_another_fd_is_served_while_the_link_waits_directly():
+    other_r, other_w = os.pipe()
+
+    async def other_reader(order: list[str]) -> None:
+        await trio.lowlevel.wait_readable(other_r)
+        order.append("other fd")
+
+    def host(host_out: int) -> None:
+        threading.Event().wait(0.1)
+        os.write(other_w, b"x")
+        printer_bytes_after(0.5)(host_out)
+
+    try:
+        assert await wait_while(host, other_reader) == ["other fd", "printer"]
+    finally:
+        os.close(other_r)
+        os.close(other_w)
+
+
+async def test_a_thread_finishing_is_heard_while_the_link_waits_directly():
+    async def thread_result(order: list[str]) -> None:
+        await trio.to_thread.run_sync(threading.Event().wait, 0.1)
+        order.append("thread")
+
+    assert await wait_while(printer_bytes_after(0.6), thread_result) == ["thread", "printer"]
+
+
+async def test_a_deadline_cancels_a_direct_wait_on_time():
+    with pipes() as (printer_in, host_out, _, _):
+        # A wait deaf to deadlines would sleep until these late bytes came.
+        late = threading.Timer(HOST_GIVES_UP, os.write, (host_out, b"late\n"))
+        late.start()
+        try:
+            with trio.move_on_after(0.05) as scope:
+                await DirectWait(printer_in).readable()
+        finally:
+            late.cancel()
+        assert scope.cancelled_caught
+
+
+async def test_an_autojump_clock_is_never_blocked_by_a_direct_wait(autojump_clock):
+    # The autojump clock moves time when every task is blocked; a wait in poll(2) would stop
+    # it. The host writes only after two real seconds: a wrong wait returns readable.
+    with pipes() as (printer_in, host_out, _, _):
+        timer = threading.Timer(2.0, os.write, (host_out, b"late\n"))
+        timer.start()
+        try:
+            with trio.move_on_after(1000) as scope:
+                await DirectWait(printer_in).readable()
+        finally:
+            timer.cancel()
+        assert scope.cancelled_caught
