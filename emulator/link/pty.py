@@ -18,6 +18,7 @@ import tty
 import trio
 
 from fake_marlin.emulator.link.base import HostOpened, queue_output
+from fake_marlin.emulator.link.direct_wait import DirectWait
 from fake_marlin.emulator.link.opens import open_watcher
 
 _TCGETS2 = 0x802C542A  # _IOR('T', 0x2A, struct termios2): reads custom rates such as 250000
@@ -42,6 +43,7 @@ class PtyLink:
         fcntl.ioctl(self._master, termios.TIOCPKT, struct.pack("i", 1))
         os.set_blocking(self._master, False)
         self.path = os.ttyname(self._slave)
+        self._readable = DirectWait(self._master)
         self._opens = open_watcher()
         self._watch = self._opens.watch(self.path)
 
@@ -72,7 +74,7 @@ class PtyLink:
                 await self._reconnected.wait()
                 continue
             try:
-                await trio.lowlevel.wait_readable(self._master)
+                await self._readable.readable()
                 packet = os.read(self._master, 4096)
             except (BlockingIOError, trio.ClosedResourceError):
                 continue
