@@ -226,7 +226,7 @@ def cpu(bench: Bench) -> Section:
             "— (the floor)", None,
             {"trio_us": statistics.median(on_trio), "bare_us": statistics.median(plain)}))
         section.notes.append("the bare responder on trio answers as the bare one does but waits "
-                             "for its pty as fake-marlin does (trio.lowlevel.wait_readable): "
+                             "for its pty as fake-marlin does (link/direct_wait.py): "
                              "what any printer on trio pays per command before it does anything")
     section.notes.append(f"the printer process's own CPU time (user + system, /proc) while the "
                          f"job ran, over the job's commands; load average "

@@ -1,7 +1,7 @@
 """The bare ok-responder: the least a Marlin printer on a pty can be, as the bench's reference.
 
     python -m fake_marlin.emulator.bench.responder      # prints its /dev/pts path, then serves
-    python -m fake_marlin.emulator.bench.responder --trio   # the same, waiting as trio waits
+    python -m fake_marlin.emulator.bench.responder --trio   # the same, waiting as fake-marlin does
 
 Every line a host sends is answered at once with `ok`, so a host's throughput against it is
 what the host and the pty alone allow, and its CPU per command what a pty program cannot go
@@ -127,12 +127,13 @@ def _answer_packet(responder: Responder, packet: bytes) -> bytes:
 
 
 async def serve_on_trio(master: int, responder: Responder) -> None:
-    """The same loop on trio, as the emulator waits for its pty: what the least a trio program
-    pays per command (the scheduler's round, epoll's registration) costs beside `serve`."""
-    import trio  # only this variant needs it
+    """The same loop on trio, waiting for the pty as the emulator does (link/direct_wait.py):
+    what the least a printer on trio pays per command costs beside `serve`."""
+    from fake_marlin.emulator.link.direct_wait import DirectWait  # only this variant needs trio
 
+    readable = DirectWait(master)
     while True:
-        await trio.lowlevel.wait_readable(master)
+        await readable.readable()
         try:
             packet = os.read(master, 65536)
         except BlockingIOError:
