@@ -1,8 +1,10 @@
 """The printer model on its own: simulated time goes in, replies come out."""
 
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 
-from fake_marlin.emulator.printer.gcode import parse
+from fake_marlin.emulator.printer.gcode import parse, parse_plain_move
 from fake_marlin.emulator.printer.model import Printer, Reply, Sleep
 
 
@@ -173,3 +175,46 @@ def test_a_line_that_does_not_start_with_its_command_is_unknown_and_does_not_mov
     there, and the G1 behind it must not run (its numbered original is resent and runs)."""
     command = parse(line)
     assert command.code == "" and command.params == {}
+
+
+# -- the straight move's quick way (a session's most common command) ------------------------
+_number = st.from_regex(r"-?[0-9]{1,4}(\.[0-9]{0,3})?", fullmatch=True)
+# Mostly the plain form (`G1 X10.4 Y10.0 E0.020 F6000`), with the few things that make a line
+# take parse() instead: other letters and codes, no number, no space or two, a comment.
+_plain_word = st.tuples(st.sampled_from("XYZEF"), _number, st.just(" "))
+_other_word = st.tuples(st.sampled_from("XYZEFxSI"), _number | st.just(""),
+                        st.sampled_from([" ", "", "  "]))
+_move_lines = st.builds(
+    lambda code, words, end: code + "".join(space + letter + number
+                                            for letter, number, space in words) + end,
+    st.sampled_from(["G1", "G1", "G0", "G01", "g1", "G2"]),
+    st.lists(_plain_word | _plain_word | _other_word, min_size=1, max_size=6),
+    st.sampled_from(["", "", "", " ", " ;c"]),
+)
+
+
+@given(_move_lines)
+def test_the_quick_parse_of_a_plain_move_is_parse_or_declines(line):
+    quick = parse_plain_move(line)
+    assert quick is None or quick == parse(line)
+
+
+@given(st.lists(_move_lines, min_size=1, max_size=20), st.booleans())
+def test_a_move_with_room_is_the_move_execute_makes(lines, relative):
+    # The same moves through execute() and, where they are plain and the planner has room,
+    # through move_with_room(): the same planner, position and feedrate at every step.
+    general, quick = Printer(), Printer()
+    now = 0.0
+    for printer in (general, quick):
+        run(printer, "G91" if relative else "G90", now)
+    for line in lines:
+        now += 0.01
+        _, after = run(general, line, now)
+        move = parse_plain_move(line)
+        if move is not None and quick.room(now) > 0:
+            quick.move_with_room(move, now)
+        else:
+            run(quick, line, now)
+        now = after
+        assert quick.planner._blocks == general.planner._blocks
+        assert quick.motion == general.motion

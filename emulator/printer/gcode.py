@@ -54,6 +54,21 @@ def parse(line: str) -> Command:
     return Command(text, code, params)
 
 
+# G0/G1 as hosts send them: `G1 X10.4 Y10.0 E0.020 F6000`, upper case, single spaces, plain
+# numbers, nothing else on the line.
+_PLAIN_MOVE = re.compile(r"G[01](?: [XYZEF]-?\d+(?:\.\d*)?)+")
+
+
+def parse_plain_move(text: str) -> Command | None:
+    """parse(text) for the usual straight move, the most common command by far, in one match;
+    None for anything else (parse() reads that). tests/test_printer_model.py holds it to
+    parse()."""
+    if _PLAIN_MOVE.fullmatch(text) is None:
+        return None
+    code, *words = text.split(" ")
+    return Command(text, code, {word[0]: float(word[1:]) for word in words})
+
+
 def _integer_text(number: str) -> str:
     if not number:
         return ""

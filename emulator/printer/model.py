@@ -138,6 +138,11 @@ class Printer:
             outcome = yield from outcome
         return outcome
 
+    def move_with_room(self, command: Command, now: float) -> None:
+        """G0/G1 when the planner has room (room(now) > 0): what execute() does for it, which
+        then neither waits nor prints, without a generator (a session's most common command)."""
+        motion.move_with_room(self, command, now)
+
     def emergency(self, text: str, now: float) -> tuple[str, ...]:
         """What the emergency parser does the moment M108/M112/M410/M876 arrives."""
         command: Command = parse(text)

@@ -70,10 +70,15 @@ def plan_move(printer, target: list[float], speed: float, now: float):
     duration = _duration(printer, start, target, speed)
     while printer.planner.room(now) == 0:
         now = yield Sleep(printer.planner.next_change(now))
+    _queue(printer, start, target, duration, now)
+    return now
+
+
+def _queue(printer, start: tuple[float, ...], target: list[float], duration: float,
+           now: float) -> None:
     if duration > 0:
         printer.planner.add(now, duration, start, tuple(target))
     printer.motion.position = list(target)
-    return now
 
 
 def synchronize(printer, now: float):
@@ -84,10 +89,24 @@ def synchronize(printer, now: float):
 
 
 def move(printer, command: Command, now: float):
+    speed = _speed(printer, command)
+    yield from plan_move(printer, _target(printer, command), speed, now)
+    return reply()
+
+
+def move_with_room(printer, command: Command, now: float) -> None:
+    """`move` where the planner has room: the same move, with nothing to wait for."""
+    speed = _speed(printer, command)
+    target = _target(printer, command)
+    start = tuple(printer.motion.position)
+    _queue(printer, start, target, _duration(printer, start, target, speed), now)
+
+
+def _speed(printer, command: Command) -> float:
+    """mm/s: F (mm/min) sets the feedrate for this move and the ones after it."""
     if command.value("F", 0.0) > 0:
         printer.motion.feedrate = command.value("F")
-    yield from plan_move(printer, _target(printer, command), printer.motion.feedrate / 60.0, now)
-    return reply()
+    return printer.motion.feedrate / 60.0
 
 
 def arc(printer, command: Command, now: float):
