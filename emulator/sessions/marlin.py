@@ -8,7 +8,7 @@ from collections.abc import Callable, Iterable
 import trio
 
 from fake_marlin.emulator.journal.writer import Journal
-from fake_marlin.emulator.printer.gcode import Command, parse
+from fake_marlin.emulator.printer.gcode import Command, parse, parse_plain_move
 from fake_marlin.emulator.printer.model import SELF_REPORTING, Printer, Reply
 from fake_marlin.emulator.protocols.marlin import (
     EmergencyCommand,
@@ -21,8 +21,6 @@ from fake_marlin.emulator.sessions.driver import CommandRun, finish, hold_queue_
 from fake_marlin.emulator.sessions.marlin_binary import BinaryTransfer
 
 BUSY_INTERVAL = 2.0  # HOST_KEEPALIVE default; M113 changes it
-# Straight moves as hosts send them (G10, `G1X5` and `g1` take the general path).
-PLAIN_MOVES = ("G1 ", "G0 ")
 
 
 def boot_lines(printer: Printer, reason: str) -> list[str]:
@@ -163,19 +161,15 @@ class MarlinSession:
             sd.write_line(received.text)  # M28 stores lines instead of running them
             self._send(self.protocol.send(Ok(received.line_number, planner_free=self._room())))
             return
-        if received.text.startswith(PLAIN_MOVES) and not self.protocol.advanced_ok:
-            run = self._start(received.text, None)  # parsed as it runs
-            if run is None:
-                return
-            if self.printer.room(run.started_at) > 0:
-                self._move_at_once(received, run)
-                return
-            command = parse(received.text)
-        else:
-            command = parse(received.text)
-            run = self._start(received.text, command)
-            if run is None:
-                return
+        move = None if self.protocol.advanced_ok else parse_plain_move(received.text)
+        command = parse(received.text) if move is None else move
+        if not self._before(received.text):
+            return
+        now = trio.current_time()
+        if move is not None and self.printer.room(now) > 0:
+            self._move_at_once(received, move, now)
+            return
+        run = self._run(received.text, command)
         until = run.advance()
         if until is None:
             self._done(received, command, run.reply)
@@ -184,15 +178,16 @@ class MarlinSession:
             self._waiting = (received, command, run, until)
             self._work.set()
 
-    def _move_at_once(self, received: LineReceived, run: CommandRun) -> None:
+    def _move_at_once(self, received: LineReceived, move: Command, now: float) -> None:
         """A straight move the planner has room for completes at once and prints nothing, so
         its `ok` goes out first and the planning after it, while the host is busy reading the
         `ok` and sending the next line: the host sees the same bytes, sooner. The journal has
         the move before its `ok`, as always, and the model plans it at the time it arrived."""
-        run.record()
-        self._done(received, None, Reply())
-        if run.advance() is not None:
-            raise AssertionError(f"{received.text!r} waited with room in the planner")
+        self.printer.sd.binary_mode = False  # as for every command (see _run)
+        self.journal.record(move.text)
+        self._send(self.protocol.send(Ok(received.line_number)))
+        self.protocol.saving_to_sd = self.printer.sd.saving is not None
+        self.printer.move_with_room(move, now)
 
     async def _carry_on(
         self, received: LineReceived, command: Command, run: CommandRun, until: float
@@ -203,10 +198,17 @@ class MarlinSession:
             return
         self._done(received, command, reply)
 
-    def _start(self, text: str, command: Command | None) -> CommandRun | None:
-        self._before_command(text)
-        if self.printer.halted:
+    def _start(self, text: str, command: Command) -> CommandRun | None:
+        if not self._before(text):
             return None
+        return self._run(text, command)
+
+    def _before(self, text: str) -> bool:
+        """The faults that fire on a command; False if they halted the printer."""
+        self._before_command(text)
+        return not self.printer.halted
+
+    def _run(self, text: str, command: Command) -> CommandRun:
         # Set by this command alone (M28 B1) and read when it is done: one from the card, which
         # never reaches _done, must not turn the host's next M28 into the binary switch.
         self.printer.sd.binary_mode = False
@@ -220,14 +222,12 @@ class MarlinSession:
         finally:
             self._set_busy(False)
 
-    def _done(self, received: LineReceived, command: Command | None, reply: Reply) -> None:
-        """`command` None: a move (_move_at_once), which has no effect on the protocol."""
+    def _done(self, received: LineReceived, command: Command, reply: Reply) -> None:
         if self.printer.halted:
             self.announce(reply.lines)
             self._wake()
             return
-        if command is not None:
-            self._protocol_effects(command)
+        self._protocol_effects(command)
         self.announce(reply.lines)
         self._send(
             self.protocol.send(Ok(received.line_number, reply.ok_suffix, planner_free=self._room()))
