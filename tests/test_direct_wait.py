@@ -197,3 +197,35 @@ async def test_an_autojump_clock_is_never_blocked_by_a_direct_wait(autojump_cloc
         finally:
             timer.cancel()
         assert scope.cancelled_caught
+
+
+async def test_an_instrument_of_io_waits_hears_every_wait():
+    # An instrument's before_io_wait/after_io_wait hooks are trio's promise to tell of each of
+    # its waits: with one installed, every wait is trio's own.
+    class CountWaits(trio.abc.Instrument):
+        waits = 0
+
+        def before_io_wait(self, timeout: float) -> None:
+            self.waits += 1
+
+    lines = 50
+    instrument = CountWaits()
+    trio.lowlevel.add_instrument(instrument)
+    try:
+        with pipes() as (printer_in, host_out, host_in, printer_out):
+            def host() -> None:
+                for _ in range(lines):
+                    os.write(host_out, b"G28\n")
+                    os.read(host_in, 16)
+
+            wait = DirectWait(printer_in)
+            thread = start_thread(host)
+            with trio.fail_after(HOST_GIVES_UP):
+                for _ in range(lines):
+                    await wait.readable()
+                    os.read(printer_in, 64)
+                    os.write(printer_out, b"ok\n")
+            thread.join()
+    finally:
+        trio.lowlevel.remove_instrument(instrument)
+    assert instrument.waits >= lines

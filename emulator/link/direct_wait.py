@@ -43,7 +43,6 @@ except ImportError:  # pragma: no cover - a trio laid out otherwise: every wait 
 
 MAX_TASKS = 256  # past this many tasks (a printer has about 10), every wait is trio's
 _MAX_TIMEOUT = 86400.0  # trio's own cap on one wait (seconds)
-_IO_INSTRUMENTS = {"before_io_wait", "after_io_wait"}  # hooks trio calls around its waits
 _READY = select.POLLIN | select.POLLPRI | select.POLLERR | select.POLLHUP | select.POLLNVAL
 
 
@@ -104,7 +103,10 @@ class DirectWait:
         if view is None or view.runnable:
             return False
         runner = view.runner
-        if runner.waiting_for_idle or _IO_INSTRUMENTS & runner.instruments.keys():
+        instruments = runner.instruments
+        if runner.waiting_for_idle or (
+            "before_io_wait" in instruments or "after_io_wait" in instruments
+        ):
             return False  # they expect to hear of, or around, trio's own wait
         if not self._alone(runner):
             return False
