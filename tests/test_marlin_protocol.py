@@ -6,6 +6,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from fake_marlin.emulator.protocols.marlin import (
+    MAX_CMD_SIZE,
     EmergencyCommand,
     LineError,
     LineReceived,
@@ -203,21 +204,46 @@ class CharByChar(MarlinProtocol):
     def _numbered_in_order(self, command):
         return None
 
+    def _whole_plain_line(self, data):
+        return None
+
     def _scan_for_emergencies(self, data):
         self._scan_lines_for_emergencies(data)  # every line looked at, M or not
 
 
+_plain = st.text("G1 XYEF0123456789.-", max_size=40)
+_long = st.text("G1 XYEF0123456789.-", min_size=84, max_size=96)  # about what the buffer holds
+_one_odd_character = st.builds(lambda before, odd, after: before + odd + after, _plain,
+                               st.sampled_from("*();\r\\\x08\x00"), _plain)
+
+
 @settings(max_examples=300)
-@given(st.lists(st.tuples(st.integers(-2, 4), st.text("G1 XYEF0123456789.-*() ;", max_size=30),
+@given(st.lists(st.tuples(st.integers(-2, 4),
+                          st.text("G1 XYEF0123456789.-*() ;", max_size=30)
+                          | _plain | _long | _long | _one_odd_character,
                           st.booleans()), max_size=20))
 def test_the_usual_line_read_in_one_match_is_read_as_the_rules_read_it(lines):
-    """Numbered lines near the expected number, right or wrong checksums, stray `*` and `(`."""
+    """Numbered lines near the expected number, right or wrong checksums, stray `*` and `(`,
+    line ends, escapes, backspaces and NULs inside, lines too long for the buffer: each in a
+    read of its own, as a host sends them."""
     fast, slow = MarlinProtocol(), CharByChar()
     for offset, text, right in lines:
         body = f"N{fast.last_n + offset} {text}"
         wire = f"{body}*{xor_checksum(body) if right else 0}\n".encode()
         assert feed(fast, wire) == feed(slow, wire)
         assert fast.last_n == slow.last_n
+    assert fast.data_to_send() == slow.data_to_send()
+
+
+@pytest.mark.parametrize("length", range(MAX_CMD_SIZE - 4, MAX_CMD_SIZE + 3))
+def test_a_line_about_as_long_as_the_buffer_is_read_as_the_rules_read_it(length):
+    # The firmware keeps MAX_CMD_SIZE - 1 characters of a line; a longer one loses its end.
+    lines = (f"{body}*{xor_checksum(body)}" for body in (f"N1 G1 X{'1' * digits}{end}"
+                                                         for digits in range(length)
+                                                         for end in ("", " ")))
+    wire = next(line for line in lines if len(line) == length).encode() + b"\n"
+    fast, slow = MarlinProtocol(), CharByChar()
+    assert feed(fast, wire) == feed(slow, wire)
     assert fast.data_to_send() == slow.data_to_send()
 
 

@@ -72,6 +72,9 @@ _LINE_END = re.compile(rb"[\r\n]")
 # N<digits>, spaces, a command without `*` or `(`, `*<digits>`: what a host sends nearly always
 _PLAIN_NUMBERED = re.compile(r"N(\d+)\s*([^*(]*)\*(\d+)")
 _SPECIAL = re.compile(rb"[;\\(\x08]")  # what process_stream_char() treats other than text
+# One line, ended, of plain text that fits the line buffer (MAX_CMD_SIZE less its NUL): no
+# other line end, nothing _SPECIAL, no NUL.
+_ONE_PLAIN_LINE = re.compile(rb"[^\r\n;\\(\x08\x00]{1,%d}\n" % (MAX_CMD_SIZE - 1))
 _EMERGENCY = re.compile(r"(?:N-?\d+\s*)?(M(?:108|112|410)(?!\d)|M876\s*S\d+)")
 
 
@@ -149,6 +152,10 @@ class MarlinProtocol:
         if self._emergencies:
             return self._emergencies.pop(0)
         data = self._input
+        if not data:
+            return None
+        if (whole := self._whole_plain_line(data)) is not None:
+            return whole
         position = 0
         try:
             while position < len(data) and self._queued < self.queue_size:
@@ -167,6 +174,19 @@ class MarlinProtocol:
             return None
         finally:
             del data[:position]
+
+    def _whole_plain_line(self, data: bytearray) -> LineReceived | None:
+        """The usual read, one whole line with nothing in it that process_stream_char() treats
+        other than text, into an empty line buffer with room in the queue: read as
+        _line_done() reads it, when it is the usual numbered line (_numbered_in_order), in one
+        match instead of stretch by stretch; None for anything else, which the loop reads."""
+        if (self._line or self._state is not InputState.NORMAL or self._escaped
+                or self._queued >= self.queue_size or _ONE_PLAIN_LINE.fullmatch(data) is None):
+            return None
+        event = self._numbered_in_order(data[:-1].decode("ascii", "replace").lstrip(" "))
+        if event is not None:
+            data.clear()
+        return event
 
     def _stream_chars(self, data: bytearray, start: int, stop: int) -> None:
         """process_stream_char() over data[start:stop], a stretch without line ends: plain text
