@@ -394,3 +394,56 @@ def test_auto_detection_knows_a_frame_by_its_header_and_waits_for_no_more(packet
     assert all(starts_with_header(wire[:cut]) in (None, True) for cut in range(len(wire)))
     assert starts_with_header(wire) is True
     assert starts_with_header(b"\x01\x0e\x01\x14M105\n") is False  # STK500 noise, then Marlin
+
+
+# -- the MK20's pings: a boot, or an answer of ours that was lost ---------------------------
+class LosesTheFirstPingAnswer:
+    """The host's end of the line, where the host's first answer to one of the MK20's pings
+    is lost on its way (as a dropped byte spoils it: campaign 2036, case 135)."""
+
+    ANSWER = encode_packet(Packet(Task.PING, CommType.RESPONSE_SUCCESS, struct.pack("<i", 1)))
+
+    def __init__(self, stream) -> None:
+        self.stream = stream
+        self.lost = False
+
+    async def send_all(self, data: bytes) -> None:
+        if not self.lost and self.ANSWER in data:
+            data, self.lost = data.replace(self.ANSWER, b"", 1), True
+        await self.stream.send_all(data)
+
+    async def receive_some(self, max_bytes: int | None = None) -> bytes:
+        return await self.stream.receive_some(max_bytes)
+
+
+async def test_a_ping_repeated_because_its_answer_was_lost_is_no_reset(autojump_clock, sd_printer):
+    """The MK20 pings every 5 s until it hears from the ESP (Application::loop, `_espOK`): the
+    answer to its boot ping lost, it pings again mid-print, as it would after a reboot. The
+    host makes sure it has been heard (a Ping of its own, answered) before it starts the print,
+    so only a ping after that says the printer restarted (campaign 2036, case 135)."""
+    async with running_printer(ServerConfig(protocol="commstack"), sd_printer) as printer:
+        line = LosesTheFirstPingAnswer(printer.link.open_host())
+        async with connect(line, "commstack") as client:
+            summary = await client.print_commands(JOB)
+        journal = printer.journal
+    assert line.lost
+    assert summary.commands == len(JOB)
+    assert [line for line in journal if not is_host_command(line)] == JOB
+
+
+def test_only_a_ping_after_the_mk20_has_answered_one_of_ours_says_it_restarted():
+    """Until the MK20 has answered a Ping of the host's, its pings may be repeats of one whose
+    answer was lost; once it has, it pings no more (the line keeps order: a ping it sent before
+    it handled the host's comes before the answer), unless it boots again."""
+    ping = encode_packet(Packet(Task.PING, CommType.REQUEST, struct.pack("<i", 109)))
+    host = CommStackEndpoint()
+    host.receive_data(ping * 2)  # the boot ping, and its repeat: our answer was lost
+    assert host.printer_pings == 2 and not host.printer_restarted
+    handshake = host.start(Task.PING, struct.pack("<i", 1))
+    host.poll(0.0)
+    host.receive_data(ping)  # sent before the MK20 read our Ping: it crossed ours on the line
+    assert not host.printer_restarted
+    host.receive_data(encode_packet(Packet(Task.PING, CommType.RESPONSE_SUCCESS, b"m\0\0\0")))
+    assert handshake.outcome is Outcome.SUCCESS and not host.printer_restarted
+    host.receive_data(ping)
+    assert host.printer_restarted and host.printer_pings == 4

@@ -329,3 +329,16 @@ def test_a_busy_printer_is_waited_for_but_one_that_refuses_is_not():
             lambda request: refusals.append(request) or Reply(Outcome.FAILED),
         )
     assert len(refusals) == 8
+
+
+def test_the_printer_is_pinged_once_before_the_first_print_request_only():
+    """The handshake that makes any later ping of the MK20's a restart (its pings stop once it
+    has answered a Ping of ours): before the first print request, and not again before a second
+    upload's, which must not hide a restart after a print request that may have started."""
+    printer = MK20()
+    printer.rename_next_open = "jnb.gcode"
+    print_job(printer)
+    sent = tasks(printer)
+    assert sent.count("PING") == 1
+    assert sent.index("PING") + 1 == sent.index("PRINT_PROJECT_WITH_ID")
+    assert sent.count("FILE_OPEN_FOR_WRITE") == 2 and printer.prints == ["job.gcode"]

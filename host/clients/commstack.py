@@ -3,12 +3,14 @@
 Uploading, as the ESP pushes a file (Printrhub's PushFileToSDCard): FileOpenForWrite (JSON with
 the path, size and no compression), FileSetSize, FileSaveData in chunks one at a time (the ESP's
 128 bytes once the line has shown it carries them, down to 8 while it damages them), FileClose.
-Then PrintProjectWithID with the path starts the print, and the client follows
-it with M27 through RunPrinterGCode until the printer says it is done (`Not SD printing`; an
-answer that is neither that nor its progress, such as a late answer to `M27 C` or one damaged
-past the checksum, is asked again). The rules that make each step happen exactly once are
-sans-IO, in fake_marlin.host.cores.commstack; this client carries their requests to the
-endpoint and the replies back, and keeps what they share over the connection (a Link).
+Then a Ping of the host's own (so that the MK20's pings stop, and any later one means it booted
+again), and PrintProjectWithID with the path starts the print; the client follows it with M27
+through RunPrinterGCode until the printer says it is done (`Not SD printing`; an answer that is
+neither that nor its progress, such as a late answer to `M27 C` or one damaged past the
+checksum, is asked again), and reports a ping since the Ping's answer as a restart. The rules
+that make each step happen exactly once are sans-IO, in fake_marlin.host.cores.commstack; this
+client carries their requests to the endpoint and the replies back, and keeps what they share
+over the connection (a Link).
 """
 
 import math
@@ -170,12 +172,13 @@ class CommStackClient(Client):
             if progress is not None:
                 progress(sum(1 for end in ends if end <= position))
 
-        pings = self._endpoint.printer_pings
         await self.wait_for_print(printed)
         # A print that stopped because the printer restarted also ends in "Not SD printing".
+        # store_and_print's handshake made the MK20 stop pinging before the print began: a
+        # ping since then is a boot, not a repeat of one whose answer was lost.
         with trio.move_on_after(BOOT_PINGS_WITHIN):
-            await self._wait_until(lambda: self._endpoint.printer_pings > pings)
-        if self._endpoint.printer_pings > pings:
+            await self._wait_until(lambda: self._endpoint.printer_restarted)
+        if self._endpoint.printer_restarted:
             raise PrinterReset(
                 "the printer restarted during the print (it pinged as it booted): what it had "
                 "not printed yet is lost"

@@ -45,6 +45,12 @@ Until they are back at CHUNK_SIZE a line end goes in a chunk of its own (`Link.n
 A print request that is not answered with a success is checked with `M27 C` (which file is
 selected), after a sync, before it is sent again. A file the printer will not print is stored
 again (`store_and_print`).
+
+Restarts. The MK20 says nothing as it boots but its pings, which it repeats every 5 s until it
+hears from the ESP: a ping may be a boot, or a repeat of one whose answer the line lost. Once
+the MK20 has answered a Ping of ours (`handshake`, before the print request) it pings no more
+until it boots again, so a ping after that answer is a restart
+(`CommStackEndpoint.printer_restarted`).
 """
 
 import itertools
@@ -130,9 +136,19 @@ class CommStackEndpoint:
         self._frames = FrameSplitter(limit=1 << 16)
         self._current: Exchange | None = None
         self._answers: list[bytes] = []  # our responses to the printer's requests
-        # The MK20's pings: it sends them as it boots (every 5 s until answered), and at no
-        # other time, so one that comes during a print says the printer restarted.
+        # The MK20's pings: it sends them from its boot on, every 5 s, until it hears from the
+        # ESP (an answer to one, or a Ping of the ESP's own: Application::loop's `_espOK`). So
+        # a ping may repeat one whose answer was lost on the line; only a ping that comes after
+        # the MK20 has answered a Ping of ours (the handshake) says it booted again.
         self.printer_pings = 0
+        self._pings_since_handshake: int | None = None  # None: no Ping of ours answered yet
+
+    @property
+    def printer_restarted(self) -> bool:
+        """The MK20 has pinged since it last answered a Ping of ours: it has booted since.
+        (The line keeps order, and the MK20 sets `_espOK` before it answers: a ping it sent
+        before it handled our Ping comes before the answer.)"""
+        return bool(self._pings_since_handshake)
 
     def start(self, task: int, data: bytes = b"") -> Exchange:
         if self._current is not None and self._current.outcome is None:
@@ -178,7 +194,10 @@ class CommStackEndpoint:
                 self._settle(decoded)
 
     def _answer(self, request: Packet) -> None:
-        self.printer_pings += request.task == Task.PING
+        if request.task == Task.PING:
+            self.printer_pings += 1
+            if self._pings_since_handshake is not None:
+                self._pings_since_handshake += 1
         data = struct.pack("<i", BUILD_NUMBER) if request.task == Task.PING else b""
         self._answers.append(encode_packet(Packet(request.task, CommType.RESPONSE_SUCCESS, data)))
 
@@ -190,6 +209,8 @@ class CommStackEndpoint:
             return
         if response.comm_type == CommType.RESPONSE_SUCCESS:
             current.outcome = Outcome.SUCCESS
+            if current.task == Task.PING:
+                self._pings_since_handshake = 0  # the MK20 has heard us: it pings no more
         else:
             self.stats.rejects += 1
             current.outcome = Outcome.FAILED
@@ -311,6 +332,16 @@ def sync(link: Link, max_transmissions: int, patience: int | None = None) -> Ste
             break
     raise PrinterNotResponding(
         f"no request answered in {tries} tries; is a Printrbot (CommStack) on the port?"
+    )
+
+
+def handshake(max_transmissions: int, patience: int | None = None) -> Steps[None]:
+    """A Ping of our own, until the MK20 answers it. Handling it sets `_espOK` (mk20
+    Application::runTask), which stops the MK20's pings until it boots again: from the answer
+    on, a ping from the printer says it restarted (CommStackEndpoint.printer_restarted). Before
+    it, a ping may repeat one whose answer the line lost. Harmless to repeat."""
+    yield from request(
+        Task.PING, struct.pack("<i", BUILD_NUMBER), max_transmissions, patience=patience
     )
 
 
@@ -464,10 +495,17 @@ def store_and_print(
 ) -> Steps[None]:
     """`upload`, then `start_print`; a file the printer will not print is stored again (a name
     damaged past the checksum in FileOpenForWrite stores the job under another name), up to
-    UPLOAD_ATTEMPTS times."""
+    UPLOAD_ATTEMPTS times.
+
+    Before the first print request, a `handshake`: from then on a ping from the printer says it
+    restarted, and one that restarts during the print can be told from one that merely repeats
+    a ping whose answer was lost. Only before the first: a print request whose answer is lost
+    may have started the print, and a restart after it must still show."""
     link = Link() if link is None else link
-    for _ in range(UPLOAD_ATTEMPTS):
+    for attempt in range(UPLOAD_ATTEMPTS):
         yield from upload(name, content, max_transmissions, progress, link)
+        if attempt == 0:
+            yield from handshake(max_transmissions, patience)
         if (yield from _start_print(name, max_transmissions, link, patience)):
             return
     raise UploadFailed(f"the printer would not print {name}, stored {UPLOAD_ATTEMPTS} times")
