@@ -59,8 +59,9 @@ async def test_the_installed_trio_lets_a_link_wait_directly():
     assert direct_waits_available()
 
 
-async def test_a_host_sending_a_line_at_a_time_costs_no_trip_through_trio(trio_waits):
-    lines = 200
+async def answer_lines(lines: int) -> int:
+    """A host thread sends `lines` lines, each once the one before is answered; the printer
+    waits for each with one DirectWait and answers `ok`. Returns the fd the printer read."""
     with pipes() as (printer_in, host_out, host_in, printer_out):
         def host() -> None:
             for number in range(lines):
@@ -75,6 +76,11 @@ async def test_a_host_sending_a_line_at_a_time_costs_no_trip_through_trio(trio_w
                 assert os.read(printer_in, 64).startswith(b"G1 X")
                 os.write(printer_out, b"ok\n")
         thread.join()
+    return printer_in
+
+
+async def test_a_host_sending_a_line_at_a_time_costs_no_trip_through_trio(trio_waits):
+    printer_in = await answer_lines(200)
     # The first wait, before the loop was alone, may go through trio; the steady state never.
     assert trio_waits.count(printer_in) <= 2
 
@@ -172,31 +178,29 @@ async def test_a_thread_finishing_is_heard_while_the_link_waits_directly():
     assert await wait_while(printer_bytes_after(0.6), thread_result) == ["thread", "printer"]
 
 
-async def test_a_deadline_cancels_a_direct_wait_on_time():
+async def cut_off_by(seconds: float) -> bool:
+    """Whether a direct wait is cancelled by a deadline `seconds` away, where the host's bytes
+    come only after HOST_GIVES_UP real seconds: a wait that slept past the deadline returns
+    readable instead."""
     with pipes() as (printer_in, host_out, _, _):
-        # A wait deaf to deadlines would sleep until these late bytes came.
         late = threading.Timer(HOST_GIVES_UP, os.write, (host_out, b"late\n"))
         late.start()
         try:
-            with trio.move_on_after(0.05) as scope:
+            with trio.move_on_after(seconds) as scope:
                 await DirectWait(printer_in).readable()
         finally:
             late.cancel()
-        assert scope.cancelled_caught
+        return scope.cancelled_caught
+
+
+async def test_a_deadline_cancels_a_direct_wait_on_time():
+    assert await cut_off_by(0.05)
 
 
 async def test_an_autojump_clock_is_never_blocked_by_a_direct_wait(autojump_clock):
     # The autojump clock moves time when every task is blocked; a wait in poll(2) would stop
-    # it. The host writes only after two real seconds: a wrong wait returns readable.
-    with pipes() as (printer_in, host_out, _, _):
-        timer = threading.Timer(2.0, os.write, (host_out, b"late\n"))
-        timer.start()
-        try:
-            with trio.move_on_after(1000) as scope:
-                await DirectWait(printer_in).readable()
-        finally:
-            timer.cancel()
-        assert scope.cancelled_caught
+    # it, and 1000 virtual seconds would take the late bytes' real ones.
+    assert await cut_off_by(1000)
 
 
 async def test_an_instrument_of_io_waits_hears_every_wait():
@@ -212,20 +216,7 @@ async def test_an_instrument_of_io_waits_hears_every_wait():
     instrument = CountWaits()
     trio.lowlevel.add_instrument(instrument)
     try:
-        with pipes() as (printer_in, host_out, host_in, printer_out):
-            def host() -> None:
-                for _ in range(lines):
-                    os.write(host_out, b"G28\n")
-                    os.read(host_in, 16)
-
-            wait = DirectWait(printer_in)
-            thread = start_thread(host)
-            with trio.fail_after(HOST_GIVES_UP):
-                for _ in range(lines):
-                    await wait.readable()
-                    os.read(printer_in, 64)
-                    os.write(printer_out, b"ok\n")
-            thread.join()
+        await answer_lines(lines)
     finally:
         trio.lowlevel.remove_instrument(instrument)
     assert instrument.waits >= lines
