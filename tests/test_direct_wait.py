@@ -178,6 +178,14 @@ async def test_a_thread_finishing_is_heard_while_the_link_waits_directly():
     assert await wait_while(printer_bytes_after(0.6), thread_result) == ["thread", "printer"]
 
 
+async def test_a_task_waiting_for_all_to_block_is_woken_while_the_link_waits_directly():
+    async def idle_waiter(order: list[str]) -> None:
+        await trio.testing.wait_all_tasks_blocked(0.05)
+        order.append("all blocked")
+
+    assert await wait_while(printer_bytes_after(0.6), idle_waiter) == ["all blocked", "printer"]
+
+
 async def cut_off_by(seconds: float) -> bool:
     """Whether a direct wait is cancelled by a deadline `seconds` away, where the host's bytes
     come only after HOST_GIVES_UP real seconds: a wait that slept past the deadline returns
