@@ -63,11 +63,11 @@ class _RunnerView:
         try:
             if runner.is_guest:
                 return None
-            "before_io_wait" in runner.instruments  # noqa: B015 - are these there?
-            runner.waiting_for_idle.__len__  # noqa: B018
-            runner.tasks.__len__  # noqa: B018
-            trio.lowlevel.current_task()._schedule_points.__index__  # noqa: B018
-            float(runner.clock_autojump_threshold)
+            # What the waits read, looked at once here: a missing one fails now, not mid-wait.
+            task = trio.lowlevel.current_task()
+            _ = ("before_io_wait" in runner.instruments, len(runner.waiting_for_idle),
+                 len(runner.tasks), task._schedule_points + 0, task._next_send_fn,
+                 float(runner.clock_autojump_threshold))
             return cls(runner, runner.runq, runner.deadlines.next_deadline,
                        runner.clock.deadline_to_sleep_time, runner.io_manager._epoll.fileno())
         except (AttributeError, TypeError, ValueError, OSError):
@@ -146,7 +146,7 @@ class DirectWait:
 
 
 def direct_waits_available() -> bool:
-    """Whether, inside this trio run, waits can be made directly (for the tests and the bench's
-    notes: where it is False, this trio's internals changed and every wait goes through trio)."""
+    """Whether, inside this trio run, waits can be made directly (for the tests: where it is
+    False, this trio's internals changed and every wait goes through trio)."""
     runner = _current_runner()
     return runner is not None and _RunnerView.of(runner) is not None
