@@ -120,6 +120,40 @@ async def test_a_task_woken_with_the_waiter_runs_before_the_waiter_blocks():
             os.read(printer_in, 16)
 
 
+async def test_a_task_the_waiter_wakes_runs_before_its_next_direct_wait():
+    # The printer's own work wakes a task (as a session wakes its executor): that task is in
+    # the run queue and must run before the printer blocks for the next line. Every other line
+    # is answered by that task, woken right after a direct wait, the others by the printer; the
+    # host sends each line once the one before is answered: a wrong wait hangs.
+    lines = 20
+    with pipes() as (printer_in, host_out, answers, answer):
+        def host() -> None:
+            for _ in range(lines):
+                os.write(host_out, b"G28\n")
+                os.read(answers, 1)
+
+        send, receive = trio.open_memory_channel[int](lines)
+
+        async def woken() -> None:
+            async for _ in receive:
+                os.write(answer, b"w")
+
+        wait = DirectWait(printer_in)
+        thread = start_thread(host)
+        with trio.fail_after(5):
+            async with trio.open_nursery() as nursery:
+                nursery.start_soon(woken)
+                for number in range(lines):
+                    await wait.readable()
+                    os.read(printer_in, 64)
+                    if number % 2:
+                        send.send_nowait(number)
+                    else:
+                        os.write(answer, b"p")
+                send.close()
+        thread.join()
+
+
 async def wait_while(host, *tasks) -> list[str]:
     """The printer waits for its fd while `tasks` wait for theirs and the host thread acts;
     what happened, in order."""
