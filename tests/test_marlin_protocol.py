@@ -201,9 +201,6 @@ class CharByChar(MarlinProtocol):
         for position in range(start, stop):
             self._stream_char(data[position])
 
-    def _numbered_in_order(self, command):
-        return None
-
     def _whole_plain_line(self, data):
         return None
 

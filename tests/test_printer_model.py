@@ -4,8 +4,9 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from fake_marlin.emulator.printer.gcode import parse, parse_plain_move
+from fake_marlin.emulator.printer.gcode import is_plain_move, parse
 from fake_marlin.emulator.printer.model import Printer, Reply, Sleep
+from fake_marlin.emulator.printer.planner import Block
 
 
 def run(printer: Printer, line: str, now: float) -> tuple[Reply, float]:
@@ -194,27 +195,74 @@ _move_lines = st.builds(
 
 
 @given(_move_lines)
-def test_the_quick_parse_of_a_plain_move_is_parse_or_declines(line):
-    quick = parse_plain_move(line)
-    assert quick is None or quick == parse(line)
+def test_a_plain_move_is_a_straight_move_with_numbers_for_the_axes_and_feedrate_only(line):
+    command = parse(line)
+    if is_plain_move(line):
+        assert command.code in ("G0", "G1") and command.text == line
+        assert all(letter in "XYZEF" and value is not None
+                   for letter, value in command.params.items())
 
 
-@given(st.lists(_move_lines, min_size=1, max_size=20), st.booleans())
-def test_a_move_with_room_is_the_move_execute_makes(lines, relative):
-    # The same moves through execute() and, where they are plain and the planner has room,
-    # through move_with_room(): the same planner, position and feedrate at every step.
+@given(st.sampled_from(["G0", "G1"]), st.lists(_plain_word, min_size=1, max_size=6))
+def test_a_move_as_hosts_send_it_is_plain(code, words):
+    assert is_plain_move(code + "".join(f" {letter}{number}" for letter, number, _ in words))
+
+
+# Between moves: what changes how a move is planned (limits, speed factor, modes, position) or
+# waits for the planner (M400).
+_other_lines = st.sampled_from(["M203 X50", "M220 S50", "M220 S100", "G92 X0 E0", "G91", "G90",
+                                "M83", "M82", "M400", "M114", "M105", "G4 P1"])
+
+
+_plain_moves = st.builds(lambda code, words: code + "".join(f" {letter}{number}"
+                                                             for letter, number, _ in words),
+                        st.sampled_from(["G0", "G1"]), st.lists(_plain_word, min_size=1, max_size=5))
+
+
+@given(st.lists(st.tuples(_plain_moves | _plain_moves | _move_lines | _other_lines
+                          | st.just("reset"),
+                          st.sampled_from([0.0, 0.001, 0.01, 0.5]), st.booleans()),
+                min_size=1, max_size=40),
+       st.booleans())
+def test_a_move_at_once_is_the_move_execute_makes(steps, relative):
+    # The same lines through execute() and, where they are plain moves the planner has room
+    # for, through move_at_once(), which plans later: looked at now and then (or only at the
+    # end), the same planner, position and feedrate.
     general, quick = Printer(), Printer()
     now = 0.0
     for printer in (general, quick):
         run(printer, "G91" if relative else "G90", now)
-    for line in lines:
-        now += 0.01
-        _, after = run(general, line, now)
-        move = parse_plain_move(line)
-        if move is not None and quick.room(now) > 0:
-            quick.move_with_room(move, now)
+    for line, pause, look in steps:
+        now += pause
+        if line == "reset":  # a new boot: what was not planned yet is gone with the rest
+            general.reset(now)
+            quick.reset(now)
+            continue
+        reply, after = run(general, line, now)
+        if not (is_plain_move(line) and quick.move_at_once(line, now)):
+            assert run(quick, line, now) == (reply, after)
         else:
-            run(quick, line, now)
+            assert after == now and reply == Reply()
         now = after
-        assert quick.planner._blocks == general.planner._blocks
-        assert quick.motion == general.motion
+        if look:
+            assert planned(quick, now) == planned(general, now)
+    assert planned(quick, now) == planned(general, now)
+    assert quick.motion == general.motion
+
+
+def planned(printer: Printer, now: float) -> list[Block]:
+    """The moves planned and not finished at `now`."""
+    printer.planner.moves(now)  # retires the finished ones
+    return list(printer.planner._blocks)
+
+
+def test_a_move_not_planned_yet_starts_where_the_move_before_it_ended():
+    # Planned later than it arrived, a move still starts at the end of the move it followed,
+    # even when that move has finished by the time the next one comes.
+    quick = Printer()
+    assert quick.move_at_once("G1 X100 F6000", 0.0)
+    first = quick.planner._blocks[0]
+    assert quick.move_at_once("G1 X200", 0.01)  # while the first still runs
+    assert quick.move_at_once("G1 X300", first.end + 0.5)  # the first has ended, not the second
+    second, third = quick.planner._blocks
+    assert (second.start, third.start) == (first.end, second.end)

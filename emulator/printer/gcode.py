@@ -59,14 +59,11 @@ def parse(line: str) -> Command:
 _PLAIN_MOVE = re.compile(r"G[01](?: [XYZEF]-?\d+(?:\.\d*)?)+")
 
 
-def parse_plain_move(text: str) -> Command | None:
-    """parse(text) for the usual straight move, the most common command by far, in one match;
-    None for anything else (parse() reads that). tests/test_printer_model.py holds it to
-    parse()."""
-    if _PLAIN_MOVE.fullmatch(text) is None:
-        return None
-    code, *words = text.split(" ")
-    return Command(text, code, {word[0]: float(word[1:]) for word in words})
+def is_plain_move(text: str) -> bool:
+    """Whether text is the usual straight move, the most common command by far, which
+    Printer.move_with_room() reads from its words without parse(). tests/test_printer_model.py
+    holds the two to parse() and execute()."""
+    return _PLAIN_MOVE.fullmatch(text) is not None
 
 
 def _integer_text(number: str) -> str:

@@ -94,12 +94,29 @@ def move(printer, command: Command, now: float):
     return reply()
 
 
-def move_with_room(printer, command: Command, now: float) -> None:
-    """`move` where the planner has room: the same move, with nothing to wait for."""
-    speed = _speed(printer, command)
-    target = _target(printer, command)
-    start = tuple(printer.motion.position)
-    _queue(printer, start, target, _duration(printer, start, target, speed), now)
+_AXIS_INDEX = {axis: index for index, axis in enumerate(AXES)}
+
+
+def plan_plain_move(printer, text: str, now: float) -> None:
+    """`move` for a line gcode.is_plain_move() accepts, where the planner has room: the same
+    move, read straight from its words (a later word wins, as in parse()), with nothing to wait
+    for."""
+    motion = printer.motion
+    start = motion.position
+    target = list(start)
+    feedrate = 0.0
+    for word in text.split(" ")[1:]:
+        letter = word[0]
+        if letter == "F":
+            feedrate = float(word[1:])
+            continue
+        index = _AXIS_INDEX[letter]
+        relative = motion.relative_e if letter == "E" else motion.relative
+        target[index] = start[index] + float(word[1:]) if relative else float(word[1:])
+    if feedrate > 0:  # as _speed()
+        motion.feedrate = feedrate
+    origin = tuple(start)
+    _queue(printer, origin, target, _duration(printer, origin, target, motion.feedrate / 60.0), now)
 
 
 def _speed(printer, command: Command) -> float:

@@ -69,12 +69,10 @@ class Output:
 
 _LEADING_INT = re.compile(r"\s*([-+]?\d+)")
 _LINE_END = re.compile(rb"[\r\n]")
-# N<digits>, spaces, a command without `*` or `(`, `*<digits>`: what a host sends nearly always
-_PLAIN_NUMBERED = re.compile(r"N(\d+)\s*([^*(]*)\*(\d+)")
 _SPECIAL = re.compile(rb"[;\\(\x08]")  # what process_stream_char() treats other than text
-# One line, ended, of plain text that fits the line buffer (MAX_CMD_SIZE less its NUL): no
-# other line end, nothing _SPECIAL, no NUL.
-_ONE_PLAIN_LINE = re.compile(rb"[^\r\n;\\(\x08\x00]{1,%d}\n" % (MAX_CMD_SIZE - 1))
+# What a host sends nearly always, `N<n> <command>*<checksum>\n`, in ASCII, with no other line
+# end and nothing in it that process_stream_char() treats other than text (_SPECIAL, NUL).
+_PLAIN_LINE = re.compile(rb"N(\d+)([^*\r\n;\\(\x08\x00\x80-\xff]*)\*(\d+)\n")
 _EMERGENCY = re.compile(r"(?:N-?\d+\s*)?(M(?:108|112|410)(?!\d)|M876\s*S\d+)")
 
 
@@ -109,14 +107,24 @@ class MarlinProtocol:
         self._output = bytearray()
         self._emergency_line = bytearray()
         self._emergencies: list[EmergencyCommand] = []
+        self._read: LineReceived | None = None  # a line receive_data() read whole
 
     # -- receiving ---------------------------------------------------------------------
     def receive_data(self, data: bytes) -> None:
+        # The usual read, a whole plain line without an M (so no emergency command) and nothing
+        # unread before it, is read at once: no buffering, no scan.
+        if (self._read is None and not self._input and not self._emergency_line
+                and b"M" not in data and (line := self._whole_plain_line(data)) is not None):
+            self._read = line
+            return
         self._input += data
         self._scan_for_emergencies(data)
 
     def _scan_for_emergencies(self, data: bytes) -> None:
         """The emergency parser sees every byte as it arrives, whole lines of them at a time."""
+        if data[-1:] == b"\n" and b"M" not in data and b"M" not in self._emergency_line:
+            self._emergency_line.clear()  # the usual G1 line: ended, and no emergency command
+            return
         if b"M" not in data and b"M" not in self._emergency_line:
             # No line here can be an emergency command (the usual G1): keep the unfinished tail.
             last_end = max(data.rfind(b"\n"), data.rfind(b"\r"))
@@ -151,11 +159,12 @@ class MarlinProtocol:
     def next_event(self) -> Event | None:
         if self._emergencies:
             return self._emergencies.pop(0)
+        if (line := self._read) is not None:
+            self._read = None
+            return line
         data = self._input
         if not data:
             return None
-        if (whole := self._whole_plain_line(data)) is not None:
-            return whole
         position = 0
         try:
             while position < len(data) and self._queued < self.queue_size:
@@ -175,18 +184,26 @@ class MarlinProtocol:
         finally:
             del data[:position]
 
-    def _whole_plain_line(self, data: bytearray) -> LineReceived | None:
-        """The usual read, one whole line with nothing in it that process_stream_char() treats
-        other than text, into an empty line buffer with room in the queue: read as
-        _line_done() reads it, when it is the usual numbered line (_numbered_in_order), in one
-        match instead of stretch by stretch; None for anything else, which the loop reads."""
-        if (self._line or self._state is not InputState.NORMAL or self._escaped
-                or self._queued >= self.queue_size or _ONE_PLAIN_LINE.fullmatch(data) is None):
+    def _whole_plain_line(self, data: bytes) -> LineReceived | None:
+        """The usual read, one whole _PLAIN_LINE numbered last_N + 1 with a correct checksum,
+        into an empty line buffer with room in the queue: read in one match as _line_done()
+        reads it; None for anything else, which next_event() reads by the rules."""
+        if (len(data) > MAX_CMD_SIZE  # longer than the line buffer (and its NUL) holds
+                or self._line or self._state is not InputState.NORMAL or self._escaped
+                or self._queued >= self.queue_size):
             return None
-        event = self._numbered_in_order(data[:-1].decode("ascii", "replace").lstrip(" "))
-        if event is not None:
-            data.clear()
-        return event
+        match = _PLAIN_LINE.fullmatch(data)
+        # M110 sets the line number rather than following it: the rules read it.
+        if match is None or int(match[1]) != self.last_n + 1 or b"M110" in data:
+            return None
+        if int(match[3]) != xor8(data[:match.start(3) - 1]):
+            return None
+        text = match[2].decode("ascii").strip()
+        if not text:
+            return None
+        self.last_n = line_number = int(match[1])
+        self._queued += 1
+        return LineReceived(text, line_number)
 
     def _stream_chars(self, data: bytearray, start: int, stop: int) -> None:
         """process_stream_char() over data[start:stop], a stretch without line ends: plain text
@@ -243,8 +260,6 @@ class MarlinProtocol:
         command = raw.lstrip(" ")
         if not command:
             return None
-        if (fast := self._numbered_in_order(command)) is not None:
-            return fast
         line_number = None
         if command.startswith("N"):
             is_m110 = "M110" in command
@@ -265,22 +280,6 @@ class MarlinProtocol:
         text = strip_line_number(remove_paren_comments(command))
         if not text:
             return None
-        self._queued += 1
-        return LineReceived(text, line_number)
-
-    def _numbered_in_order(self, command: str) -> LineReceived | None:
-        """The usual line (`N<last+1> <command>*<checksum>`, checked, no comment) read in
-        one match; None for anything else, which the rules of _line_done() read in full."""
-        match = _PLAIN_NUMBERED.fullmatch(command)
-        if match is None or "M110" in command or int(match[1]) != self.last_n + 1:
-            return None
-        star = match.start(3) - 1
-        if int(match[3]) != xor_checksum(command[:star]):
-            return None
-        text = match[2].strip()
-        if not text:
-            return None
-        self.last_n = line_number = int(match[1])
         self._queued += 1
         return LineReceived(text, line_number)
 

@@ -8,7 +8,7 @@ from collections.abc import Callable, Iterable
 import trio
 
 from fake_marlin.emulator.journal.writer import Journal
-from fake_marlin.emulator.printer.gcode import Command, parse, parse_plain_move
+from fake_marlin.emulator.printer.gcode import Command, is_plain_move, parse
 from fake_marlin.emulator.printer.model import SELF_REPORTING, Printer, Reply
 from fake_marlin.emulator.protocols.marlin import (
     EmergencyCommand,
@@ -102,7 +102,8 @@ class MarlinSession:
                 if self.printer.halted:
                     self._wake()
                     break
-        self._send(self.protocol.data_to_send())
+        if rejections := self.protocol.data_to_send():  # a rejected line's Error and Resend
+            self._send(rejections)
         if self._binary.active:
             self.feed(b"")  # what came with M28 B1 is the binary protocol's
 
@@ -161,14 +162,14 @@ class MarlinSession:
             sd.write_line(received.text)  # M28 stores lines instead of running them
             self._send(self.protocol.send(Ok(received.line_number, planner_free=self._room())))
             return
-        move = None if self.protocol.advanced_ok else parse_plain_move(received.text)
-        command = parse(received.text) if move is None else move
+        # ADVANCED_OK's `ok` says the planner's room after the move: it waits for the planning.
+        plain_move = not self.protocol.advanced_ok and is_plain_move(received.text)
         if not self._before(received.text):
             return
-        now = trio.current_time()
-        if move is not None and self.printer.room(now) > 0:
-            self._move_at_once(received, move, now)
+        if plain_move and self.printer.move_at_once(received.text, trio.current_time()):
+            self._moved_at_once(received)
             return
+        command = parse(received.text)
         run = self._run(received.text, command)
         until = run.advance()
         if until is None:
@@ -178,16 +179,14 @@ class MarlinSession:
             self._waiting = (received, command, run, until)
             self._work.set()
 
-    def _move_at_once(self, received: LineReceived, move: Command, now: float) -> None:
-        """A straight move the planner has room for completes at once and prints nothing, so
-        its `ok` goes out first and the planning after it, while the host is busy reading the
-        `ok` and sending the next line: the host sees the same bytes, sooner. The journal has
-        the move before its `ok`, as always, and the model plans it at the time it arrived."""
+    def _moved_at_once(self, received: LineReceived) -> None:
+        """A straight move the planner had room for completes at once and prints nothing: the
+        journal has it, then its `ok` goes out (the model plans it later, as of the time it
+        arrived: Printer.move_at_once)."""
         self.printer.sd.binary_mode = False  # as for every command (see _run)
-        self.journal.record(move.text)
+        self.journal.record(received.text)
         self._send(self.protocol.send(Ok(received.line_number)))
         self.protocol.saving_to_sd = self.printer.sd.saving is not None
-        self.printer.move_with_room(move, now)
 
     async def _carry_on(
         self, received: LineReceived, command: Command, run: CommandRun, until: float
