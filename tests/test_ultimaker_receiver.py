@@ -1,7 +1,7 @@
 """The printer's receiver, against the behaviour of UltimakerMarlin's SerialProtocol."""
 
 import pytest
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from fake_marlin.emulator.protocols.ultimaker import (
@@ -178,3 +178,48 @@ def test_a_valid_packet_after_garbage_is_accepted_by_the_time_it_is_resent(garba
     seq = protocol.expected_seq
     received = feed(protocol, encode_packet(seq, payload)) + feed(protocol, encode_packet(seq, payload))
     assert CommandReceived(seq, payload.decode()) in received
+
+
+class ByteByByte(UltimakerProtocol):
+    """The receiver as the firmware runs it: readCommand() for every byte."""
+
+    def _whole_packet(self, start):
+        return None
+
+
+@settings(max_examples=300)
+@given(st.lists(st.tuples(
+    st.integers(-1, 1),  # the sequence number: one before, as expected, one after
+    st.binary(max_size=100) | st.text("G1 XYEF0123456789.", min_size=0, max_size=100).map(str.encode),
+    st.sampled_from([None, None, None, "crc", "length", "cut", "cut crc", "header", "ff",
+                     "garbage"]),
+    st.booleans(),  # the printer finishes the commands it has before this packet arrives
+), max_size=25), st.integers(1, 8))
+# A packet cut before its last CRC byte: the next packet's first byte completes it.
+@example([(0, b"G1 X1", "cut crc", False), (0, b"G1 X2", None, False)], 8)
+def test_reading_a_whole_packet_at_once_is_reading_it_byte_by_byte(packets, queue_size):
+    fast, slow = UltimakerProtocol(queue_size), ByteByByte(queue_size)
+    for seq_offset, payload, damage, finish in packets:
+        wire = bytearray(encode_packet((fast.expected_seq + seq_offset) % 255, payload[:96] or b"M"))
+        if damage == "crc":
+            wire[-1] ^= 0x01
+        elif damage == "length":
+            wire[3] = 0 if wire[3] > 50 else 97
+        elif damage == "cut":
+            wire = wire[:len(wire) // 2]
+        elif damage == "cut crc":  # what comes next is read as the CRC's second byte
+            wire = wire[:-1]
+        elif damage == "header":
+            wire[1] = 0x00
+        elif damage == "ff":
+            wire[4] = 0xFF
+        elif damage == "garbage":
+            wire[:0] = b"\x00\xff"
+        received = feed(fast, bytes(wire))
+        assert received == feed(slow, bytes(wire))
+        assert fast.expected_seq == slow.expected_seq
+        for protocol in (fast, slow):
+            for event in received if finish else ():
+                if isinstance(event, CommandReceived):
+                    protocol.send(CommandDone(event.seq, room=15))
+        assert fast.data_to_send() == slow.data_to_send()

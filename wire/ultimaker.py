@@ -4,6 +4,8 @@ Host->printer packets (v2): FF FF seq len payload crc16-big-endian.
 Printer->host frames (v3): "\\n" K SS PP CC "\\n", CC = CRC8 over the ASCII of K SS PP.
 """
 
+import re
+
 from fake_marlin.wire.checksums import crc8_smbus, crc16_ccitt_false
 from fake_marlin.wire.framing import Framer
 from fake_marlin.wire.lines import LINES, MAX_LINE, line_end
@@ -15,6 +17,7 @@ MAX_PAYLOAD = 96  # MAX_CMD_SIZE
 PAYLOAD_MIN_BYTE = 0x20
 PAYLOAD_MAX_BYTE = 0x7E
 PLANNER_ROOM_MAX = 15  # BLOCK_BUFFER_SIZE 16 holds at most 15 moves
+PRINTABLE = re.compile(b"[%c-%c]*" % (PAYLOAD_MIN_BYTE, PAYLOAD_MAX_BYTE))  # a payload's bytes
 
 
 def payload_error(payload: bytes) -> str | None:

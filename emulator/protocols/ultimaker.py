@@ -108,6 +108,9 @@ class UltimakerProtocol:
         position = 0
         try:
             while position < len(self._input):
+                if (whole := self._whole_packet(position)) is not None:
+                    position, received = whole
+                    return received
                 byte = self._input[position]
                 position += 1
                 event = self._step(byte)
@@ -119,6 +122,25 @@ class UltimakerProtocol:
             return None
         finally:
             del self._input[:position]
+
+    def _whole_packet(self, start: int) -> tuple[int, CommandReceived] | None:
+        """The usual packet, whole at `start` with the receiver waiting for one, numbered as
+        expected, of printable ASCII, with a correct CRC and room in the queue: read at once as
+        _step() reads it byte by byte; None for anything else, which _step() reads."""
+        data = self._input
+        end = start + 6 + data[start + 3] if len(data) >= start + 4 else len(data) + 1
+        if (end > len(data) or self.state is not ReceiverState.WAIT_FOR_HEADER_BYTE
+                or data[start] != wire.HEADER_BYTE or data[start + 1] != wire.HEADER_BYTE
+                or data[start + 2] != self.expected_seq or self._queued >= self.queue_size):
+            return None
+        payload = bytes(data[start + 4:end - 2])
+        if (not 1 <= len(payload) <= wire.MAX_PAYLOAD or wire.PRINTABLE.fullmatch(payload) is None
+                or int.from_bytes(data[end - 2:end], "big")
+                != wire.packet_crc(self.expected_seq, payload)):
+            return None
+        self._queued += 1
+        seq, self.expected_seq = self.expected_seq, wire.next_seq(self.expected_seq)
+        return end, CommandReceived(seq, payload.decode("ascii"))
 
     def _step(self, byte: int) -> Event | None:
         state = self.state
