@@ -7,6 +7,7 @@ from collections.abc import Callable, Iterable
 import trio
 
 from fake_marlin.emulator.journal.writer import Journal
+from fake_marlin.emulator.printer.gcode import is_plain_move
 from fake_marlin.emulator.printer.model import Printer, Reply
 from fake_marlin.emulator.protocols.ultimaker import (
     CommandDone,
@@ -100,6 +101,11 @@ class UltimakerSession:
             self._before_command(received.text)
         if self.printer.halted:
             self._executor_idle = False  # it runs nothing more until the printer is reset
+            return
+        if is_plain_move(received.text) and self.printer.move_at_once(
+                received.text, trio.current_time()):
+            self.journal.record(received.text)  # the common case: as CommandRun would, at once
+            self._done(received, Reply())
             return
         run = CommandRun(self.printer, received.text, self.journal, self._respond)
         until = run.advance()
