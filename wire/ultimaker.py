@@ -24,6 +24,8 @@ def payload_error(payload: bytes) -> str | None:
     """Why a payload cannot be sent in a packet, or None if it can."""
     if not 1 <= len(payload) <= MAX_PAYLOAD:
         return f"payload is {len(payload)} bytes; a packet carries 1 to {MAX_PAYLOAD}"
+    if PRINTABLE.fullmatch(payload):
+        return None
     for index, byte in enumerate(payload):
         if not PAYLOAD_MIN_BYTE <= byte <= PAYLOAD_MAX_BYTE:
             return f"byte 0x{byte:02X} at position {index} is outside printable ASCII"
