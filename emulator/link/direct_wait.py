@@ -17,7 +17,7 @@ ourselves, as one poll(2) on the link's fd and trio's epoll fd together, with th
   trio's loop does what it would have done, our fd among the rest.
 So nothing trio would have run runs later than it would have, by more than the poll's
 millisecond rounding of the timeout, which trio's own epoll_wait has too. A cancelled task is
-told so at once (`checkpoint_if_cancelled`), as at any checkpoint.
+told so at once (`checkpoint_if_cancelled`, before the wait), as at any checkpoint.
 
 "No task is due" means more than an empty run queue: the tasks woken in the same round as
 this one wait in a list of trio's loop until their turn (see `_alone`).
@@ -93,8 +93,11 @@ class DirectWait:
     async def readable(self) -> None:
         """Return once the fd is readable (or failed, or is being closed: trio's
         ClosedResourceError, as from `wait_readable`)."""
+        # Cancellation is looked for before the wait rather than after: nothing can cancel
+        # this task during a direct wait (no other task runs; a deadline ends the wait, and
+        # trio's wait then delivers it), and the host's bytes are handled a few µs sooner.
+        await trio.lowlevel.checkpoint_if_cancelled()
         if self._waited_directly():
-            await trio.lowlevel.checkpoint_if_cancelled()
             return
         await trio.lowlevel.wait_readable(self.fd)
 
