@@ -185,6 +185,13 @@ class Printer:
         self._unplanned.append((text, now))
         return True
 
+    def catch_up(self) -> None:
+        """Plan the moves move_at_once() left for later once there are a batch of them. For a
+        session to call when its answer is out and the host is busy: the batch is then not
+        planned on the way to a later answer, as it is when the moves waiting fill the planner."""
+        if len(self._unplanned) >= MAX_MOVES // 2:
+            self._plan_moves()
+
     def emergency(self, text: str, now: float) -> tuple[str, ...]:
         """What the emergency parser does the moment M108/M112/M410/M876 arrives."""
         command: Command = parse(text)

@@ -187,6 +187,7 @@ class MarlinSession:
         self.journal.record(received.text)
         self._send(self.protocol.send(Ok(received.line_number)))
         self.protocol.saving_to_sd = self.printer.sd.saving is not None
+        self.printer.catch_up()
 
     async def _carry_on(
         self, received: LineReceived, command: Command, run: CommandRun, until: float
