@@ -53,15 +53,19 @@ def _target(printer, command: Command) -> list[float]:
 
 
 def _duration(printer, start, target, speed: float) -> float:
-    deltas = [abs(b - a) for a, b in zip(start, target)]
-    distance = math.hypot(*deltas[:3]) or deltas[3]
+    deltas = (abs(target[0] - start[0]), abs(target[1] - start[1]), abs(target[2] - start[2]),
+              abs(target[3] - start[3]))
+    distance = math.hypot(deltas[0], deltas[1], deltas[2]) or deltas[3]
     if distance == 0:
         return 0.0
     speed *= printer.motion.feedrate_percent / 100.0
-    for delta, limit in zip(deltas, printer.limits.max_feedrate):
+    limits = printer.limits
+    for delta, limit in zip(deltas, limits.max_feedrate):
         if delta > 0:  # slow the whole move so that no axis exceeds its own limit
-            speed = min(speed, limit * distance / delta)
-    return move_time(distance, speed, printer.limits.acceleration, printer.config.junction_speed)
+            bound = limit * distance / delta
+            if bound < speed:
+                speed = bound
+    return move_time(distance, speed, limits.acceleration, printer.config.junction_speed)
 
 
 def plan_move(printer, target: list[float], speed: float, now: float):
@@ -103,20 +107,23 @@ def plan_plain_move(printer, text: str, now: float) -> None:
     for."""
     motion = printer.motion
     start = motion.position
-    target = list(start)
+    target = start.copy()
     feedrate = 0.0
     for word in text.split(" ")[1:]:
         letter = word[0]
         if letter == "F":
             feedrate = float(word[1:])
-            continue
-        index = _AXIS_INDEX[letter]
-        relative = motion.relative_e if letter == "E" else motion.relative
-        target[index] = start[index] + float(word[1:]) if relative else float(word[1:])
+        elif letter == "E":
+            target[3] = start[3] + float(word[1:]) if motion.relative_e else float(word[1:])
+        else:
+            index = _AXIS_INDEX[letter]
+            target[index] = start[index] + float(word[1:]) if motion.relative else float(word[1:])
     if feedrate > 0:  # as _speed()
         motion.feedrate = feedrate
-    origin = tuple(start)
-    _queue(printer, origin, target, _duration(printer, origin, target, motion.feedrate / 60.0), now)
+    duration = _duration(printer, start, target, motion.feedrate / 60.0)
+    if duration > 0:  # as _queue()
+        printer.planner.add(now, duration, tuple(start), tuple(target))
+    motion.position = target
 
 
 def _speed(printer, command: Command) -> float:

@@ -194,14 +194,14 @@ class MarlinProtocol:
             return None
         match = _PLAIN_LINE.fullmatch(data)
         # M110 sets the line number rather than following it: the rules read it.
-        if match is None or int(match[1]) != self.last_n + 1 or b"M110" in data:
+        if match is None or (line_number := int(match[1])) != self.last_n + 1 or b"M110" in data:
             return None
         if int(match[3]) != xor8(data[:match.start(3) - 1]):
             return None
         text = match[2].decode("ascii").strip()
         if not text:
             return None
-        self.last_n = line_number = int(match[1])
+        self.last_n = line_number
         self._queued += 1
         return LineReceived(text, line_number)
 
