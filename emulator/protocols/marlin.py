@@ -310,6 +310,8 @@ class MarlinProtocol:
                 number = f" N{event.line_number}" if event.line_number is not None else ""
                 # The slot this command held is free again by the time `ok` goes out.
                 self._output += f"ok{number} P{event.planner_free} B{self.queue_free}\n".encode()
+            elif not self._output:
+                return b"ok\n"  # the usual answer, with nothing waiting to go before it
             else:
                 self._output += b"ok\n"
         elif isinstance(event, Output):

@@ -21,6 +21,7 @@ from fake_marlin.emulator.sessions.driver import CommandRun, finish, hold_queue_
 from fake_marlin.emulator.sessions.marlin_binary import BinaryTransfer
 
 BUSY_INTERVAL = 2.0  # HOST_KEEPALIVE default; M113 changes it
+PLAIN_OK = Ok()  # without ADVANCED_OK an `ok` says nothing of its line: one event does for all
 
 
 def boot_lines(printer: Printer, reason: str) -> list[str]:
@@ -164,7 +165,8 @@ class MarlinSession:
             return
         # ADVANCED_OK's `ok` says the planner's room after the move: it waits for the planning.
         plain_move = not self.protocol.advanced_ok and is_plain_move(received.text)
-        if not self._before(received.text):
+        self._before_command(received.text)  # the faults that fire on a command
+        if self.printer.halted:
             return
         if plain_move and self.printer.move_at_once(received.text, trio.current_time()):
             self._moved_at_once(received)
@@ -185,7 +187,7 @@ class MarlinSession:
         arrived: Printer.move_at_once)."""
         self.printer.sd.binary_mode = False  # as for every command (see _run)
         self.journal.record(received.text)
-        self._send(self.protocol.send(Ok(received.line_number)))
+        self._send(self.protocol.send(PLAIN_OK))  # (plain: not ADVANCED_OK)
         self.protocol.saving_to_sd = self.printer.sd.saving is not None
         self.printer.catch_up()
 
