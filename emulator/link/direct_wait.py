@@ -28,6 +28,7 @@ and every wait is trio's own: slower, never wrong. tests/test_direct_wait.py fai
 installed trio lost it.
 """
 
+import math
 import select
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -55,6 +56,9 @@ class _RunnerView:
     next_deadline: Callable[[], float]
     sleep_time: Callable[[float], float]  # the clock's deadline_to_sleep_time
     epoll_fd: int
+    # The instruments by hook: the dict inside trio's Instruments (a UserDict, whose own `in`
+    # is a Python call), changed in place as instruments come and go.
+    instrumented_hooks: dict[str, Any]
 
     @classmethod
     def of(cls, runner: Any) -> "_RunnerView | None":
@@ -65,11 +69,14 @@ class _RunnerView:
                 return None
             # What the waits read, looked at once here: a missing one fails now, not mid-wait.
             task = trio.lowlevel.current_task()
-            _ = ("before_io_wait" in runner.instruments, len(runner.waiting_for_idle),
-                 len(runner.tasks), task._schedule_points + 0, task._next_send_fn,
-                 float(runner.clock_autojump_threshold))
+            _ = (len(runner.waiting_for_idle), len(runner.tasks), task._schedule_points + 0,
+                 task._next_send_fn, float(runner.clock_autojump_threshold))
+            hooks = runner.instruments.data
+            if not isinstance(hooks, dict):
+                return None
             return cls(runner, runner.runq, runner.deadlines.next_deadline,
-                       runner.clock.deadline_to_sleep_time, runner.io_manager._epoll.fileno())
+                       runner.clock.deadline_to_sleep_time, runner.io_manager._epoll.fileno(),
+                       hooks)
         except (AttributeError, TypeError, ValueError, OSError):
             return None
 
@@ -106,14 +113,15 @@ class DirectWait:
         if view is None or view.runnable:
             return False
         runner = view.runner
-        instruments = runner.instruments
-        if runner.waiting_for_idle or (
-            "before_io_wait" in instruments or "after_io_wait" in instruments
-        ):
+        hooks = view.instrumented_hooks
+        if runner.waiting_for_idle or "before_io_wait" in hooks or "after_io_wait" in hooks:
             return False  # they expect to hear of, or around, trio's own wait
         if not self._alone(runner):
             return False
-        timeout = min(view.sleep_time(view.next_deadline()), _MAX_TIMEOUT)
+        deadline = view.next_deadline()
+        # No deadline (a printer idle in simulated time): trio would wait its longest.
+        timeout = _MAX_TIMEOUT if deadline == math.inf else min(view.sleep_time(deadline),
+                                                                 _MAX_TIMEOUT)
         if not timeout > 0 or runner.clock_autojump_threshold < timeout:
             return False
         events = self._poll.poll(timeout * 1000)  # milliseconds, rounded up as trio's are
