@@ -321,6 +321,8 @@ class MarlinProtocol:
         return self.data_to_send()
 
     def data_to_send(self) -> bytes:
+        if not self._output:
+            return b""
         data = bytes(self._output)
         self._output.clear()
         return data

@@ -86,9 +86,10 @@ class MarlinSession:
     def feed(self, data: bytes) -> None:
         if self.printer.halted:
             return  # a killed printer reads nothing until it is reset
-        if self._binary.active:
-            data = self._binary.feed(data)  # what follows is ASCII again, if anything
-            if self._binary.active or not data:
+        binary = self._binary
+        if binary.protocol is not None and binary.active:  # (None: no M28 B1 this boot)
+            data = binary.feed(data)  # what follows is ASCII again, if anything
+            if binary.active or not data:
                 return
         self.protocol.receive_data(data)
         while (event := self.protocol.next_event()) is not None:
@@ -105,7 +106,7 @@ class MarlinSession:
                     break
         if rejections := self.protocol.data_to_send():  # a rejected line's Error and Resend
             self._send(rejections)
-        if self._binary.active:
+        if binary.protocol is not None and binary.active:
             self.feed(b"")  # what came with M28 B1 is the binary protocol's
 
     def _wake(self) -> None:
