@@ -31,7 +31,9 @@ class Pipe:
         self._deliver = deliver
         self.conditions = conditions
         self._random = random.Random(seed)
-        self._queue: deque[tuple[float, bytes]] = deque()
+        # (start, byte time, bytes): the first byte has come at start + byte time, the last at
+        # start + len * byte time.
+        self._queue: deque[tuple[float, float, bytes]] = deque()
         self._free_at = -math.inf  # when the last queued byte will have arrived
         self._changed = trio.Event()
         self.baud: int | None = conditions.baud
@@ -53,9 +55,9 @@ class Pipe:
                     self._free_at)
         if pause:
             start = max(start, now + pause)
-        arrive = start + (len(data) * 10 / self.baud if self.baud else 0.0)
-        self._free_at = arrive
-        self._queue.append((arrive, data))
+        byte_time = 10 / self.baud if self.baud else 0.0
+        self._free_at = start + len(data) * byte_time
+        self._queue.append((start, byte_time, data))
         self._changed.set()
 
     def clear(self) -> None:
@@ -69,10 +71,30 @@ class Pipe:
             if not self._queue:
                 await changed.wait()
                 continue
-            arrive, data = self._queue[0]
-            if trio.current_time() < arrive:
-                with trio.move_on_at(arrive):
+            start, byte_time, data = self._queue[0]
+            come = _bytes_come(start, byte_time, len(data), trio.current_time())
+            if come == len(data):
+                self._queue.popleft()
+                self._deliver(data)
+            elif come:
+                # A UART hands the firmware each byte as it comes: what has come goes ahead of
+                # the rest. (Two packets a host writes at once: the first is read a packet's
+                # time before the second has come.)
+                self._queue[0] = (start + come * byte_time, byte_time, data[come:])
+                self._deliver(data[:come])
+            else:
+                with trio.move_on_at(start + byte_time):  # when the next byte has come
                     await changed.wait()
-                continue
-            self._queue.popleft()
-            self._deliver(data)
+
+
+def _bytes_come(start: float, byte_time: float, size: int, now: float) -> int:
+    """How many of `size` bytes sent from `start`, one per byte_time, have come by `now`: byte
+    k has come once start + k * byte_time <= now (the very sum the wait for it uses)."""
+    if byte_time == 0:
+        return size if start <= now else 0
+    come = min(size, max(0, int((now - start) / byte_time)))
+    while come < size and start + (come + 1) * byte_time <= now:
+        come += 1
+    while come > 0 and start + come * byte_time > now:
+        come -= 1
+    return come
