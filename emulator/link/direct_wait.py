@@ -109,14 +109,19 @@ class DirectWait:
         await trio.lowlevel.wait_readable(self.fd)
 
     def _waited_directly(self) -> bool:
-        view = self._current_view()
+        # The checks of _current_view and _alone are made here first, without the calls, in
+        # the usual case: the same run, and this task not suspended since it was found alone.
+        runner = getattr(_RUN_CONTEXT, "runner", None)
+        view = self._view if runner is self._runner else self._current_view()
         if view is None or view.runnable:
             return False
         runner = view.runner
         hooks = view.instrumented_hooks
         if runner.waiting_for_idle or "before_io_wait" in hooks or "after_io_wait" in hooks:
             return False  # they expect to hear of, or around, trio's own wait
-        if not self._alone(runner):
+        task = _RUN_CONTEXT.task
+        if not (task._schedule_points == self._alone_steps and task is self._alone_task
+                or self._alone(runner)):
             return False
         deadline = view.next_deadline()
         # No deadline (a printer idle in simulated time): trio would wait its longest.
