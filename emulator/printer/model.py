@@ -142,8 +142,7 @@ class Printer:
 
     def _plan_moves(self) -> None:
         moves, self._unplanned = self._unplanned, []
-        for text, now in moves:
-            motion.plan_plain_move(self, text, now)
+        motion.plan_plain_moves(self, moves)
 
     # -- the interface the sessions use ------------------------------------------------
     def room(self, now: float) -> int:

@@ -52,26 +52,27 @@ def _target(printer, command: Command) -> list[float]:
     return target
 
 
-def _duration(printer, start, target, speed: float) -> float:
+def _duration(motion: MotionState, limits: Limits, junction_speed: float, start, target,
+              speed: float) -> float:
     deltas = (abs(target[0] - start[0]), abs(target[1] - start[1]), abs(target[2] - start[2]),
               abs(target[3] - start[3]))
     distance = math.hypot(deltas[0], deltas[1], deltas[2]) or deltas[3]
     if distance == 0:
         return 0.0
-    speed *= printer.motion.feedrate_percent / 100.0
-    limits = printer.limits
+    speed *= motion.feedrate_percent / 100.0
     for delta, limit in zip(deltas, limits.max_feedrate):
         if delta > 0:  # slow the whole move so that no axis exceeds its own limit
             bound = limit * distance / delta
             if bound < speed:
                 speed = bound
-    return move_time(distance, speed, limits.acceleration, printer.config.junction_speed)
+    return move_time(distance, speed, limits.acceleration, junction_speed)
 
 
 def plan_move(printer, target: list[float], speed: float, now: float):
     """Queue one straight move, waiting for room in the planner; returns the time after."""
     start = tuple(printer.motion.position)
-    duration = _duration(printer, start, target, speed)
+    duration = _duration(printer.motion, printer.limits, printer.config.junction_speed, start,
+                         target, speed)
     while printer.planner.room(now) == 0:
         now = yield Sleep(printer.planner.next_change(now))
     _queue(printer, start, target, duration, now)
@@ -101,29 +102,32 @@ def move(printer, command: Command, now: float):
 _AXIS_INDEX = {axis: index for index, axis in enumerate(AXES)}
 
 
-def plan_plain_move(printer, text: str, now: float) -> None:
-    """`move` for a line gcode.is_plain_move() accepts, where the planner has room: the same
-    move, read straight from its words (a later word wins, as in parse()), with nothing to wait
-    for."""
-    motion = printer.motion
-    start = motion.position
-    target = start.copy()
-    feedrate = 0.0
-    for word in text.split(" ")[1:]:
-        letter = word[0]
-        if letter == "F":
-            feedrate = float(word[1:])
-        elif letter == "E":
-            target[3] = start[3] + float(word[1:]) if motion.relative_e else float(word[1:])
-        else:
-            index = _AXIS_INDEX[letter]
-            target[index] = start[index] + float(word[1:]) if motion.relative else float(word[1:])
-    if feedrate > 0:  # as _speed()
-        motion.feedrate = feedrate
-    duration = _duration(printer, start, target, motion.feedrate / 60.0)
-    if duration > 0:  # as _queue()
-        printer.planner.add(now, duration, tuple(start), tuple(target))
-    motion.position = target
+def plan_plain_moves(printer, moves: list[tuple[str, float]]) -> None:
+    """`move` for each (line, time it came), in order: lines gcode.is_plain_move() accepts,
+    which the planner had room for when they came. Each is read straight from its words (a
+    later word wins, as in parse()); nothing waits."""
+    motion, limits, planner = printer.motion, printer.limits, printer.planner
+    junction_speed = printer.config.junction_speed
+    for text, now in moves:
+        start = motion.position
+        target = start.copy()
+        feedrate = 0.0
+        for word in text.split(" ")[1:]:
+            letter = word[0]
+            if letter == "F":
+                feedrate = float(word[1:])
+            elif letter == "E":
+                target[3] = start[3] + float(word[1:]) if motion.relative_e else float(word[1:])
+            else:
+                index = _AXIS_INDEX[letter]
+                target[index] = start[index] + float(word[1:]) if motion.relative else float(
+                    word[1:])
+        if feedrate > 0:  # as _speed()
+            motion.feedrate = feedrate
+        duration = _duration(motion, limits, junction_speed, start, target, motion.feedrate / 60.0)
+        if duration > 0:  # as _queue()
+            planner.add(now, duration, tuple(start), tuple(target))
+        motion.position = target
 
 
 def _speed(printer, command: Command) -> float:
