@@ -185,10 +185,11 @@ class Printer:
         return True
 
     def catch_up(self) -> None:
-        """Plan the moves move_at_once() left for later once there are a batch of them. For a
-        session to call when its answer is out and the host is busy: the batch is then not
-        planned on the way to a later answer, as it is when the moves waiting fill the planner."""
-        if len(self._unplanned) >= MAX_MOVES // 2:
+        """Plan the moves move_at_once() left for later if one more would make it plan them on
+        its way. For a session to call when its answer is out and the host is busy: the batch
+        is then planned now, not on the way to the next answer. (The larger the batch, the less
+        its first move's cold start costs each: this makes it as large as it can be.)"""
+        if self._unplanned and len(self._unplanned) + self._planner.held() >= MAX_MOVES - 1:
             self._plan_moves()
 
     def emergency(self, text: str, now: float) -> tuple[str, ...]:
