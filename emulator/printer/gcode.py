@@ -61,8 +61,8 @@ _PLAIN_MOVE = re.compile(r"G[01](?: [XYZEF]-?\d+(?:\.\d*)?)+")
 
 def is_plain_move(text: str) -> bool:
     """Whether text is the usual straight move, the most common command by far, which
-    Printer.move_with_room() reads from its words without parse(). tests/test_printer_model.py
-    holds the two to parse() and execute()."""
+    Printer.move_at_once() takes and plans from its words without parse().
+    tests/test_printer_model.py holds the two to parse() and execute()."""
     return _PLAIN_MOVE.fullmatch(text) is not None
 
 

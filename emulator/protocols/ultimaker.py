@@ -108,7 +108,8 @@ class UltimakerProtocol:
         position = 0
         try:
             while position < len(self._input):
-                if (whole := self._whole_packet(position)) is not None:
+                if (self.state is ReceiverState.WAIT_FOR_HEADER_BYTE  # (not inside a packet)
+                        and (whole := self._whole_packet(position)) is not None):
                     position, received = whole
                     return received
                 byte = self._input[position]
