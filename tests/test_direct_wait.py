@@ -7,7 +7,9 @@ does.
 """
 
 import os
+import termios
 import threading
+import tty
 from collections.abc import Iterator
 from contextlib import contextmanager
 
@@ -15,6 +17,8 @@ import pytest
 import trio
 
 from fake_marlin.emulator.link import direct_wait
+from fake_marlin.emulator.link.base import HostOpened
+from fake_marlin.emulator.link.pty import PtyLink
 from fake_marlin.emulator.link.direct_wait import DirectWait, direct_waits_available
 
 HOST_GIVES_UP = 10.0  # seconds: a wait that hangs fails the test instead of the suite
@@ -262,3 +266,66 @@ async def test_an_instrument_of_io_waits_hears_every_wait():
     finally:
         trio.lowlevel.remove_instrument(instrument)
     assert instrument.waits >= lines
+
+
+# -- PtyLink.receive_now: the printer's read loop without receive()'s awaits -----------------
+@contextmanager
+def pty_host() -> Iterator[tuple[PtyLink, int]]:
+    """A PtyLink and a host's fd on it, opened (and flushed, as pyserial's open does)."""
+    link = PtyLink()
+    host = os.open(link.path, os.O_RDWR | os.O_NOCTTY)
+    try:
+        tty.setraw(host)
+        termios.tcflush(host, termios.TCIFLUSH)
+        yield link, host
+    finally:
+        os.close(host)
+        link.close()
+
+
+async def test_a_pty_link_reads_line_after_line_without_awaiting_while_trio_is_idle():
+    lines = 100
+    with pty_host() as (link, host):
+        def host_side() -> None:
+            for number in range(lines):
+                os.write(host, b"G1 X%d\n" % number)
+                assert os.read(host, 16) == b"ok\n"
+
+        with trio.fail_after(HOST_GIVES_UP):
+            assert isinstance(await link.receive(), HostOpened)  # the open
+            thread = start_thread(host_side)
+            received, awaited = b"", 0
+            while received.count(b"\n") < lines:
+                data = link.receive_now()
+                if data is None:
+                    awaited += 1
+                    data = await link.receive()
+                    assert isinstance(data, bytes)
+                received += data
+                link.send(b"ok\n")
+        thread.join()
+    assert received == b"".join(b"G1 X%d\n" % number for number in range(lines))
+    assert awaited <= 2
+
+
+async def test_what_receive_now_reads_but_is_no_data_comes_from_receive():
+    # The host opens the port again (a reset): the notice receive_now() reads on its way is
+    # neither lost nor taken for data.
+    with pty_host() as (link, host):
+        with trio.fail_after(HOST_GIVES_UP):
+            assert isinstance(await link.receive(), HostOpened)
+            start_thread(lambda: termios.tcflush(os.open(link.path, os.O_RDWR | os.O_NOCTTY),
+                                                 termios.TCIFLUSH))
+            assert link.receive_now() is None
+            assert isinstance(await link.receive(), HostOpened)
+
+
+async def test_receive_now_leaves_the_bytes_to_receive_while_another_task_is_due():
+    with pty_host() as (link, host):
+        with trio.fail_after(HOST_GIVES_UP):
+            assert isinstance(await link.receive(), HostOpened)
+            os.write(host, b"G28\n")
+            async with trio.open_nursery() as nursery:
+                nursery.start_soon(trio.sleep, 0)  # due to run: the link must not block
+                assert link.receive_now() is None
+            assert await link.receive() == b"G28\n"

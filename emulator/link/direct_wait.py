@@ -104,11 +104,14 @@ class DirectWait:
         # this task during a direct wait (no other task runs; a deadline ends the wait, and
         # trio's wait then delivers it), and the host's bytes are handled a few µs sooner.
         await trio.lowlevel.checkpoint_if_cancelled()
-        if self._waited_directly():
+        if self.waited_directly():
             return
         await trio.lowlevel.wait_readable(self.fd)
 
-    def _waited_directly(self) -> bool:
+    def waited_directly(self) -> bool:
+        """Wait directly if trio has nothing else due: True once the fd is readable, False
+        (having waited for nothing, or for what else trio now has to do) where the caller must
+        await readable()."""
         # The checks of _current_view and _alone are made here first, without the calls, in
         # the usual case: the same run, and this task not suspended since it was found alone.
         runner = getattr(_RUN_CONTEXT, "runner", None)

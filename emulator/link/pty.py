@@ -36,6 +36,7 @@ class PtyLink:
         self._pending = bytearray()
         self._output_ready = trio.Event()
         self._emptied = trio.Event()
+        self._unread: bytes | None = None  # a packet receive_now() read but does not return
 
     def _open_pty(self) -> None:
         self._master, self._slave = os.openpty()
@@ -67,6 +68,21 @@ class PtyLink:
         self._output_ready.set()
         self.on_new_path(self.path)
 
+    def receive_now(self) -> bytes | None:
+        """The host's next bytes, waited for here while trio has nothing else to do until they
+        come (DirectWait); None where receive() must be awaited instead: trio has something
+        due, or what came is no plain data (an open of the port, an error)."""
+        if not self.connected or self._unread is not None or not self._readable.waited_directly():
+            return None
+        try:
+            packet = os.read(self._master, 4096)
+        except OSError:
+            return None  # receive() reads again, and sees to it
+        if len(packet) > 1 and packet[0] == _TIOCPKT_DATA:
+            return packet[1:]
+        self._unread = packet
+        return None
+
     async def receive(self) -> bytes | HostOpened:
         """The next chunk of bytes from the host, or a HostOpened notice."""
         while True:
@@ -74,8 +90,12 @@ class PtyLink:
                 await self._reconnected.wait()
                 continue
             try:
-                await self._readable.readable()
-                packet = os.read(self._master, 4096)
+                if self._unread is not None:
+                    await trio.lowlevel.checkpoint()
+                    packet, self._unread = self._unread, None
+                else:
+                    await self._readable.readable()
+                    packet = os.read(self._master, 4096)
             except (BlockingIOError, trio.ClosedResourceError):
                 continue
             except OSError:

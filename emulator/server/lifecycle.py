@@ -44,6 +44,10 @@ class PrinterServer:
         trace: Trace | None = None,
     ) -> None:
         self.link = link
+        # A link that can wait for the host's bytes without trio (PtyLink.receive_now): None
+        # from it, or a link without it, means awaiting receive().
+        self._receive_now: Callable[[], bytes | None] = getattr(link, "receive_now",
+                                                                lambda: None)
         self.printer = printer
         # The board's flash and EEPROM outlive every reset, as the printer does; the bootloader
         # calls flash_changed (--flash-file's save) when it has written flash.
@@ -117,6 +121,11 @@ class PrinterServer:
                 await self._restart(" External Reset")
             elif self.faults.quiet_to_printer and self._to_printer.passes_through:
                 self._feed_session(item)  # the common case: straight to the session
+                # ...and while trio has nothing else due, the host's next bytes too, read here
+                # without a round through receive()'s awaits.
+                while (self.faults.quiet_to_printer and self._to_printer.passes_through
+                       and (data := self._receive_now()) is not None):
+                    self._feed_session(data)
             elif self.faults.quiet_to_printer:
                 self._to_printer.put(item)
             else:
