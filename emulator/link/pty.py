@@ -29,6 +29,7 @@ _TIOCPKT_FLUSHREAD = 1
 
 class PtyLink:
     def __init__(self) -> None:
+        self._unread: bytes | None = None  # a packet receive_now() read but does not return
         self._open_pty()
         self.connected = True
         self._reconnected = trio.Event()
@@ -36,9 +37,9 @@ class PtyLink:
         self._pending = bytearray()
         self._output_ready = trio.Event()
         self._emptied = trio.Event()
-        self._unread: bytes | None = None  # a packet receive_now() read but does not return
 
     def _open_pty(self) -> None:
+        self._unread = None  # of the pty before, if any
         self._master, self._slave = os.openpty()
         tty.setraw(self._slave)
         fcntl.ioctl(self._master, termios.TIOCPKT, struct.pack("i", 1))
