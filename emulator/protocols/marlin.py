@@ -122,9 +122,6 @@ class MarlinProtocol:
 
     def _scan_for_emergencies(self, data: bytes) -> None:
         """The emergency parser sees every byte as it arrives, whole lines of them at a time."""
-        if data[-1:] == b"\n" and b"M" not in data and b"M" not in self._emergency_line:
-            self._emergency_line.clear()  # the usual G1 line: ended, and no emergency command
-            return
         if b"M" not in data and b"M" not in self._emergency_line:
             # No line here can be an emergency command (the usual G1): keep the unfinished tail.
             last_end = max(data.rfind(b"\n"), data.rfind(b"\r"))
