@@ -202,14 +202,12 @@ class MarlinSession:
         self._done(received, command, reply)
 
     def _start(self, text: str, command: Command) -> CommandRun | None:
-        if not self._before(text):
+        """The run of a command from the card, or None if the faults that fire on it halted
+        the printer (_run_here does the same for the host's commands)."""
+        self._before_command(text)
+        if self.printer.halted:
             return None
         return self._run(text, command)
-
-    def _before(self, text: str) -> bool:
-        """The faults that fire on a command; False if they halted the printer."""
-        self._before_command(text)
-        return not self.printer.halted
 
     def _run(self, text: str, command: Command) -> CommandRun:
         # Set by this command alone (M28 B1) and read when it is done: one from the card, which
