@@ -6,7 +6,7 @@ from hypothesis import strategies as st
 
 from fake_marlin.emulator.printer.gcode import is_plain_move, parse
 from fake_marlin.emulator.printer.model import Printer, Reply, Sleep
-from fake_marlin.emulator.printer.planner import Block
+from fake_marlin.emulator.printer.planner import MAX_MOVES, Block, Planner
 
 
 def run(printer: Printer, line: str, now: float) -> tuple[Reply, float]:
@@ -267,3 +267,27 @@ def test_a_move_not_planned_yet_starts_where_the_move_before_it_ended():
     assert quick.move_at_once("G1 X300", first.end + 0.5)  # the first has ended, not the second
     second, third = quick.planner._blocks
     assert (second.start, third.start) == (first.end, second.end)
+
+
+@given(st.lists(st.tuples(st.floats(0, 0.05), st.floats(0.001, 0.05)), min_size=1, max_size=15),
+       st.lists(st.floats(0.001, 0.05), max_size=5), st.floats(0, 0.2))
+def test_a_batch_of_moves_leaves_the_planner_as_adding_them_one_by_one_would(
+        steps, before, later):
+    # A batch is added at its moves' own times; the blocks held after it, and the times
+    # asked of the planner later, are those of one add() for each.
+    moves, now = [], 0.05
+    for gap, duration in steps[:MAX_MOVES - len(before)]:
+        now += gap
+        moves.append((now, duration, (0.0,), (float(len(moves)),)))
+    one_by_one, batch = Planner(), Planner()
+    for planner in (one_by_one, batch):
+        for duration in before:  # moves planned earlier, some still running
+            planner.add(0.0, duration, (0.0,), (0.0,))
+    for move in moves:
+        one_by_one.add(*move)
+    batch.add_all(moves)
+    assert list(batch._blocks) == list(one_by_one._blocks)
+    at = now + later
+    assert batch.next_change(at) == one_by_one.next_change(at)
+    assert batch.drained_at(at) == one_by_one.drained_at(at)
+    assert batch.room(at) == one_by_one.room(at)

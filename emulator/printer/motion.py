@@ -54,17 +54,23 @@ def _target(printer, command: Command) -> list[float]:
 
 def _duration(motion: MotionState, limits: Limits, junction_speed: float, start, target,
               speed: float) -> float:
-    deltas = (abs(target[0] - start[0]), abs(target[1] - start[1]), abs(target[2] - start[2]),
-              abs(target[3] - start[3]))
-    distance = math.hypot(deltas[0], deltas[1], deltas[2]) or deltas[3]
+    # Written out axis by axis: a batch of plain moves spends a third of its time here.
+    dx, dy = abs(target[0] - start[0]), abs(target[1] - start[1])
+    dz, de = abs(target[2] - start[2]), abs(target[3] - start[3])
+    distance = math.hypot(dx, dy, dz) or de
     if distance == 0:
         return 0.0
     speed *= motion.feedrate_percent / 100.0
-    for delta, limit in zip(deltas, limits.max_feedrate):
-        if delta > 0:  # slow the whole move so that no axis exceeds its own limit
-            bound = limit * distance / delta
-            if bound < speed:
-                speed = bound
+    # Slow the whole move so that no axis exceeds its own limit.
+    limit = limits.max_feedrate
+    if dx > 0 and (bound := limit[0] * distance / dx) < speed:
+        speed = bound
+    if dy > 0 and (bound := limit[1] * distance / dy) < speed:
+        speed = bound
+    if dz > 0 and (bound := limit[2] * distance / dz) < speed:
+        speed = bound
+    if de > 0 and (bound := limit[3] * distance / de) < speed:
+        speed = bound
     return move_time(distance, speed, limits.acceleration, junction_speed)
 
 
@@ -105,29 +111,35 @@ _AXIS_INDEX = {axis: index for index, axis in enumerate(AXES)}
 def plan_plain_moves(printer, moves: list[tuple[str, float]]) -> None:
     """`move` for each (line, time it came), in order: lines gcode.is_plain_move() accepts,
     which the planner had room for when they came. Each is read straight from its words (a
-    later word wins, as in parse()); nothing waits."""
+    later word wins, as in parse()); nothing waits. The modes and limits hold for the whole
+    batch: whatever changes them reads the motion state first, which plans the batch."""
     motion, limits, planner = printer.motion, printer.limits, printer.planner
     junction_speed = printer.config.junction_speed
+    relative, relative_e = motion.relative, motion.relative_e
+    start = motion.position
+    origin = tuple(start)  # each move's target is the next one's origin: one tuple for both
+    planned: list[tuple[float, float, tuple[float, ...], tuple[float, ...]]] = []
     for text, now in moves:
-        start = motion.position
         target = start.copy()
         feedrate = 0.0
         for word in text.split(" ")[1:]:
-            letter = word[0]
+            letter, value = word[0], float(word[1:])
             if letter == "F":
-                feedrate = float(word[1:])
+                feedrate = value
             elif letter == "E":
-                target[3] = start[3] + float(word[1:]) if motion.relative_e else float(word[1:])
+                target[3] = start[3] + value if relative_e else value
             else:
                 index = _AXIS_INDEX[letter]
-                target[index] = start[index] + float(word[1:]) if motion.relative else float(
-                    word[1:])
+                target[index] = start[index] + value if relative else value
         if feedrate > 0:  # as _speed()
             motion.feedrate = feedrate
         duration = _duration(motion, limits, junction_speed, start, target, motion.feedrate / 60.0)
+        destination = tuple(target)
         if duration > 0:  # as _queue()
-            planner.add(now, duration, tuple(start), tuple(target))
-        motion.position = target
+            planned.append((now, duration, origin, destination))
+        start, origin = target, destination
+    motion.position = start
+    planner.add_all(planned)
 
 
 def _speed(printer, command: Command) -> float:

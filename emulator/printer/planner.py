@@ -19,11 +19,14 @@ class Block(NamedTuple):  # a tuple: a planner makes one per move (a frozen data
     target: tuple[float, ...]
 
 
+_new_block = tuple.__new__
+
+
 def move_time(distance: float, speed: float, acceleration: float, junction_speed: float) -> float:
     """Seconds for `distance` mm at up to `speed` mm/s, entering and leaving at junction_speed."""
     if distance <= 0 or speed <= 0:
         return 0.0
-    entry = min(junction_speed, speed)
+    entry = junction_speed if junction_speed < speed else speed  # min(), without the call
     ramp = (speed * speed - entry * entry) / (2 * acceleration)
     if 2 * ramp <= distance:
         return 2 * (speed - entry) / acceleration + (distance - 2 * ramp) / speed
@@ -66,9 +69,28 @@ class Planner:
         if len(blocks) >= MAX_MOVES:
             raise RuntimeError("planner is full")  # the caller must wait for next_change()
         start = max(now, blocks[-1].end) if blocks else now
-        block = Block(start, start + duration, origin, target)
+        # tuple.__new__ rather than Block(): the NamedTuple's own __new__ is a Python call.
+        block = _new_block(Block, (start, start + duration, origin, target))
         blocks.append(block)
         return block
+
+    def add_all(self, moves: list[tuple[float, float, tuple[float, ...], tuple[float, ...]]]) -> None:
+        """add() for each (now, duration, origin, target), in order of time, in one call: a
+        batch of plain moves that the planner has room for, all together, at the first one's
+        time. Retiring at the last one's time only leaves what retiring at each would: blocks
+        end in order, and the last ends after its own time."""
+        if not moves:
+            return
+        blocks = self._blocks
+        self._retire(moves[0][0])
+        if len(blocks) + len(moves) > MAX_MOVES:
+            raise RuntimeError("planner is full")  # the caller admitted more than it has room for
+        end = blocks[-1].end if blocks else -math.inf
+        for now, duration, origin, target in moves:
+            start = now if now > end else end
+            end = start + duration
+            blocks.append(_new_block(Block, (start, end, origin, target)))
+        self._retire(moves[-1][0])
 
     def stepper_position(self, now: float, planned: tuple[float, ...]) -> tuple[float, ...]:
         """Where the steppers are now: along the move in progress, or `planned` when idle."""
