@@ -4,7 +4,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from fake_marlin.emulator.printer.gcode import is_plain_move, parse
+from fake_marlin.emulator.printer.gcode import is_plain_move, parse, plain_move
 from fake_marlin.emulator.printer.model import Printer, Reply, Sleep
 from fake_marlin.emulator.printer.planner import MAX_MOVES, Block, Planner
 
@@ -203,20 +203,32 @@ def test_a_plain_move_is_a_straight_move_with_numbers_for_the_axes_and_feedrate_
                    for letter, value in command.params.items())
 
 
-@given(st.sampled_from(["G0", "G1"]), st.lists(_plain_word, min_size=1, max_size=6))
-def test_a_move_as_hosts_send_it_is_plain(code, words):
-    assert is_plain_move(code + "".join(f" {letter}{number}" for letter, number, _ in words))
+# A move as hosts send it: the axes in order, each at most once, F before or after them.
+_plain_moves = st.builds(
+    lambda code, numbers: code + "".join(f" {letter}{number}"
+                                         for letter, number in zip("FXYZEF", numbers)
+                                         if number is not None),
+    st.sampled_from(["G0", "G1"]),
+    st.tuples(*[st.none() | _number] * 6).filter(lambda numbers: any(n is not None
+                                                                        for n in numbers)),
+)
+
+
+@given(_plain_moves)
+def test_a_move_as_hosts_send_it_is_plain(line):
+    assert is_plain_move(line)
+
+
+@pytest.mark.parametrize("line", ["G1 Y10 X5", "G1 X5 X6", "G1 E1 Z2", "G1", "G1 X5 ;c", "G1 X",
+                                  "G1 F100 F200 F300", "G1 x5"])
+def test_a_move_in_another_form_takes_the_general_way(line):
+    assert not is_plain_move(line)  # parse() and execute() read it as they read any line
 
 
 # Between moves: what changes how a move is planned (limits, speed factor, modes, position) or
 # waits for the planner (M400).
 _other_lines = st.sampled_from(["M203 X50", "M220 S50", "M220 S100", "G92 X0 E0", "G91", "G90",
                                 "M83", "M82", "M400", "M114", "M105", "G4 P1"])
-
-
-_plain_moves = st.builds(lambda code, words: code + "".join(f" {letter}{number}"
-                                                             for letter, number, _ in words),
-                        st.sampled_from(["G0", "G1"]), st.lists(_plain_word, min_size=1, max_size=5))
 
 
 @given(st.lists(st.tuples(_plain_moves | _plain_moves | _move_lines | _other_lines
@@ -239,7 +251,8 @@ def test_a_move_at_once_is_the_move_execute_makes(steps, relative):
             quick.reset(now)
             continue
         reply, after = run(general, line, now)
-        if not (is_plain_move(line) and quick.move_at_once(line, now)):
+        move = plain_move(line)
+        if not (move is not None and quick.move_at_once(move, now)):
             assert run(quick, line, now) == (reply, after)
         else:
             assert after == now and reply == Reply()
@@ -261,10 +274,11 @@ def test_a_move_not_planned_yet_starts_where_the_move_before_it_ended():
     # Planned later than it arrived, a move still starts at the end of the move it followed,
     # even when that move has finished by the time the next one comes.
     quick = Printer()
-    assert quick.move_at_once("G1 X100 F6000", 0.0)
+    assert quick.move_at_once(plain_move("G1 X100 F6000"), 0.0)
     first = quick.planner._blocks[0]
-    assert quick.move_at_once("G1 X200", 0.01)  # while the first still runs
-    assert quick.move_at_once("G1 X300", first.end + 0.5)  # the first has ended, not the second
+    assert quick.move_at_once(plain_move("G1 X200"), 0.01)  # while the first still runs
+    # The first has ended by the third's time, not the second:
+    assert quick.move_at_once(plain_move("G1 X300"), first.end + 0.5)
     second, third = quick.planner._blocks
     assert (second.start, third.start) == (first.end, second.end)
 

@@ -54,18 +54,34 @@ def parse(line: str) -> Command:
     return Command(text, code, params)
 
 
-# G0/G1 as hosts send them: `G1 X10.4 Y10.0 E0.020 F6000`, upper case, single spaces, plain
-# numbers, nothing else on the line.
-# Each word starts with the space no word holds, so no match depends on backtracking: the
-# possessive and atomic forms match the same lines, in half the time.
-_PLAIN_MOVE = re.compile(r"G[01](?> [XYZEF]-?\d++(?:\.\d*+)?+)++")
+# G0/G1 as hosts send them: `G1 X10.4 Y10.0 E0.020 F6000` (Cura puts F first, `G1 F1500 X10.4
+# Y10.0 E0.020`), upper case, single spaces, plain numbers, each axis at most once and in this
+# order, nothing else on the line. The groups are the numbers, so that the planner reads them
+# without reading the line again. Each word starts with the space no word holds, so no match
+# depends on backtracking: possessive, the pattern keeps no states to go back to.
+_NUMBER = r"(-?\d++(?:\.\d*+)?+)"
+_PLAIN_MOVE = re.compile(rf"G[01](?: F{_NUMBER})?+(?: X{_NUMBER})?+(?: Y{_NUMBER})?+"
+                         rf"(?: Z{_NUMBER})?+(?: E{_NUMBER})?+(?: F{_NUMBER})?+")
+
+# A plain move's numbers as written, None where the line has none: F (before the axes), X, Y,
+# Z, E, F (after them).
+PlainMove = tuple[str | None, str | None, str | None, str | None, str | None, str | None]
+
+
+def plain_move(text: str) -> PlainMove | None:
+    """The numbers of text if it is the usual straight move, the most common command by far,
+    which Printer.move_at_once() takes and plans from them without parse(); None for any other
+    line (a move with its words in another order included: parse() reads that one).
+    tests/test_printer_model.py holds the two to parse() and execute()."""
+    match = _PLAIN_MOVE.fullmatch(text)
+    if match is None or match.lastindex is None:  # no word at all: `G1` alone takes parse()
+        return None
+    return match.groups()  # type: ignore[return-value]  # six groups, as PlainMove says
 
 
 def is_plain_move(text: str) -> bool:
-    """Whether text is the usual straight move, the most common command by far, which
-    Printer.move_at_once() takes and plans from its words without parse().
-    tests/test_printer_model.py holds the two to parse() and execute()."""
-    return _PLAIN_MOVE.fullmatch(text) is not None
+    """Whether plain_move() reads text."""
+    return plain_move(text) is not None
 
 
 def _integer_text(number: str) -> str:

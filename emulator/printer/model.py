@@ -12,7 +12,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from fake_marlin.emulator.printer import firmware, heating, motion, sdcard
-from fake_marlin.emulator.printer.gcode import Command, parse
+from fake_marlin.emulator.printer.gcode import Command, PlainMove, parse
 from fake_marlin.emulator.printer.motion import Limits, MotionState
 from fake_marlin.emulator.printer.planner import MAX_MOVES, Planner
 from fake_marlin.emulator.printer.steps import Reply, Report, Sleep, Step
@@ -98,7 +98,7 @@ class Printer:
     def __init__(self, config: PrinterConfig | None = None, now: float = 0.0) -> None:
         self.config = config or PrinterConfig()
         self._planner = Planner()
-        self._unplanned: list[tuple[str, float]] = []  # see move_at_once()
+        self._unplanned: list[tuple[PlainMove, float]] = []  # see move_at_once()
         self.hotends = [Heater(HOTEND, now) for _ in range(self.config.extruders)]
         self.bed = Heater(BED, now)
         self.sd = sdcard.SdCard(self.config.sd_dir)
@@ -165,8 +165,8 @@ class Printer:
             outcome = yield from outcome
         return outcome
 
-    def move_at_once(self, text: str, now: float) -> bool:
-        """G0/G1 as gcode.is_plain_move() accepts it (`G1 X10.4 Y10.0 E0.020 F6000`), when the
+    def move_at_once(self, move: PlainMove, now: float) -> bool:
+        """G0/G1 as gcode.plain_move() read it (`G1 X10.4 Y10.0 E0.020 F6000`), when the
         planner has room for it now: what execute() does for it, which then neither waits nor
         prints, and True. False, and nothing done, when the planner is full.
 
@@ -181,7 +181,7 @@ class Printer:
             self._plan_moves()
             if self._planner.room(now) <= 0:
                 return False
-        self._unplanned.append((text, now))
+        self._unplanned.append((move, now))
         return True
 
     def catch_up(self) -> None:

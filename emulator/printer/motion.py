@@ -3,7 +3,7 @@
 import math
 from dataclasses import dataclass, field
 
-from fake_marlin.emulator.printer.gcode import Command
+from fake_marlin.emulator.printer.gcode import Command, PlainMove
 from fake_marlin.emulator.printer.planner import move_time
 from fake_marlin.emulator.printer.steps import Sleep, reply
 
@@ -105,33 +105,29 @@ def move(printer, command: Command, now: float):
     return reply()
 
 
-_AXIS_INDEX = {axis: index for index, axis in enumerate(AXES)}
-
-
-def plan_plain_moves(printer, moves: list[tuple[str, float]]) -> None:
-    """`move` for each (line, time it came), in order: lines gcode.is_plain_move() accepts,
-    which the planner had room for when they came. Each is read straight from its words (a
-    later word wins, as in parse()); nothing waits. The modes and limits hold for the whole
-    batch: whatever changes them reads the motion state first, which plans the batch."""
+def plan_plain_moves(printer, moves: list[tuple[PlainMove, float]]) -> None:
+    """`move` for each (plain move, time it came), in order: moves gcode.plain_move() read,
+    which the planner had room for when they came (a later F wins, as in parse()); nothing
+    waits. The modes and limits hold for the whole batch: whatever changes them reads the
+    motion state first, which plans the batch."""
     motion, limits, planner = printer.motion, printer.limits, printer.planner
     junction_speed = printer.config.junction_speed
     relative, relative_e = motion.relative, motion.relative_e
     start = motion.position
     origin = tuple(start)  # each move's target is the next one's origin: one tuple for both
     planned: list[tuple[float, float, tuple[float, ...], tuple[float, ...]]] = []
-    for text, now in moves:
+    for (first_feed, x, y, z, e, last_feed), now in moves:
         target = start.copy()
-        feedrate = 0.0
-        for word in text.split(" ")[1:]:
-            letter, value = word[0], float(word[1:])
-            if letter == "F":
-                feedrate = value
-            elif letter == "E":
-                target[3] = start[3] + value if relative_e else value
-            else:
-                index = _AXIS_INDEX[letter]
-                target[index] = start[index] + value if relative else value
-        if feedrate > 0:  # as _speed()
+        if x is not None:
+            target[0] = start[0] + float(x) if relative else float(x)
+        if y is not None:
+            target[1] = start[1] + float(y) if relative else float(y)
+        if z is not None:
+            target[2] = start[2] + float(z) if relative else float(z)
+        if e is not None:
+            target[3] = start[3] + float(e) if relative_e else float(e)
+        feed = last_feed if last_feed is not None else first_feed
+        if feed is not None and (feedrate := float(feed)) > 0:  # as _speed()
             motion.feedrate = feedrate
         duration = _duration(motion, limits, junction_speed, start, target, motion.feedrate / 60.0)
         destination = tuple(target)

@@ -74,7 +74,8 @@ class Planner:
         blocks.append(block)
         return block
 
-    def add_all(self, moves: list[tuple[float, float, tuple[float, ...], tuple[float, ...]]]) -> None:
+    def add_all(self, moves: list[tuple[float, float, tuple[float, ...], tuple[float, ...]]]
+                ) -> None:
         """add() for each (now, duration, origin, target), in order of time, in one call: a
         batch of plain moves that the planner has room for, all together, at the first one's
         time. Retiring at the last one's time only leaves what retiring at each would: blocks

@@ -8,7 +8,7 @@ from collections.abc import Callable, Iterable
 import trio
 
 from fake_marlin.emulator.journal.writer import Journal
-from fake_marlin.emulator.printer.gcode import Command, is_plain_move, parse
+from fake_marlin.emulator.printer.gcode import Command, parse, plain_move
 from fake_marlin.emulator.printer.model import SELF_REPORTING, Printer, Reply
 from fake_marlin.emulator.protocols.marlin import (
     EmergencyCommand,
@@ -165,11 +165,11 @@ class MarlinSession:
             self._send(self.protocol.send(Ok(received.line_number, planner_free=self._room())))
             return
         # ADVANCED_OK's `ok` says the planner's room after the move: it waits for the planning.
-        plain_move = not self.protocol.advanced_ok and is_plain_move(received.text)
+        move = None if self.protocol.advanced_ok else plain_move(received.text)
         self._before_command(received.text)  # the faults that fire on a command
         if self.printer.halted:
             return
-        if plain_move and self.printer.move_at_once(received.text, trio.current_time()):
+        if move is not None and self.printer.move_at_once(move, trio.current_time()):
             self._moved_at_once(received)
             return
         command = parse(received.text)

@@ -7,7 +7,7 @@ from collections.abc import Callable, Iterable
 import trio
 
 from fake_marlin.emulator.journal.writer import Journal
-from fake_marlin.emulator.printer.gcode import is_plain_move
+from fake_marlin.emulator.printer.gcode import plain_move
 from fake_marlin.emulator.printer.model import Printer, Reply
 from fake_marlin.emulator.protocols.ultimaker import (
     CommandDone,
@@ -102,8 +102,8 @@ class UltimakerSession:
         if self.printer.halted:
             self._executor_idle = False  # it runs nothing more until the printer is reset
             return
-        if is_plain_move(received.text) and self.printer.move_at_once(
-                received.text, trio.current_time()):
+        move = plain_move(received.text)
+        if move is not None and self.printer.move_at_once(move, trio.current_time()):
             self.journal.record(received.text)  # the common case: as CommandRun would, at once
             self._done(received, Reply())
             return
