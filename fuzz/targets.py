@@ -490,6 +490,14 @@ def gcode_parser(data: bytes) -> None:
     command.string_argument
     once = canonical(line)
     assert canonical(once) == once, (line, once)  # one spelling: the journals compare these
+    move = gcode.plain_move(line)  # the quick way's reading of a move: parse()'s numbers
+    if move is not None:
+        first_feed, *axes, last_feed = move
+        feed = last_feed if last_feed is not None else first_feed
+        read = dict(zip("XYZEF", [*axes, feed]))
+        assert command.code in ("G0", "G1") and command.params == {
+            letter: float(number) for letter, number in read.items() if number is not None
+        }, (line, move, command)
 
 
 # -- the scenario loader ------------------------------------------------------------------------
