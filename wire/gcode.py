@@ -73,6 +73,12 @@ def canonical(command: str) -> str:
     letter, number = words[0]
     if letter.upper() in "GMT" and number and number.isdigit():
         head = f"{letter}{int(number)}"
+    elif letter.upper() in "GMT" and number[:1].isdigit() and (
+            f"{letter}{int(number.split('.')[0])}".upper() in TEXT_ARGUMENT_CODES):
+        # `M 117.5 X1`: a text command's number apart from its letter and not a whole one.
+        # Written together (`M117.5 X1`) it would read as M117 and the text `.5 X1`; as it is,
+        # it reads the same again (found by fuzzing: canonical() of canonical() differed).
+        return text
     else:
         head = letter + number
     params = sorted(words[1:], key=lambda word: word[0])
