@@ -125,13 +125,13 @@ class UltimakerProtocol:
             del self._input[:position]
 
     def _whole_packet(self, start: int) -> tuple[int, CommandReceived] | None:
-        """The usual packet, whole at `start` with the receiver waiting for one, numbered as
-        expected, of printable ASCII, with a correct CRC and room in the queue: read at once as
-        _step() reads it byte by byte; None for anything else, which _step() reads."""
+        """The usual packet, whole at `start`, numbered as expected, of printable ASCII, with a
+        correct CRC and room in the queue: read at once as _step() reads it byte by byte; None
+        for anything else, which _step() reads. Only for a receiver waiting for a packet's
+        header (next_event() asks only then)."""
         data = self._input
         end = start + 6 + data[start + 3] if len(data) >= start + 4 else len(data) + 1
-        if (end > len(data) or self.state is not ReceiverState.WAIT_FOR_HEADER_BYTE
-                or data[start] != wire.HEADER_BYTE or data[start + 1] != wire.HEADER_BYTE
+        if (end > len(data) or data[start] != wire.HEADER_BYTE or data[start + 1] != wire.HEADER_BYTE
                 or data[start + 2] != self.expected_seq or self._queued >= self.queue_size):
             return None
         payload = bytes(data[start + 4:end - 2])
