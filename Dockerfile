@@ -5,8 +5,8 @@
 FROM python:3.11-slim
 
 WORKDIR /src
-# Only what the package is built from (setup.py maps these folders into fake_marlin).
-COPY pyproject.toml setup.py README.md ./
+# Only what the package is built from: fake_marlin/ and the folders its symlinks point to.
+COPY pyproject.toml README.md ./
 COPY fake_marlin ./fake_marlin
 COPY emulator ./emulator
 COPY host ./host

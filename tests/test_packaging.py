@@ -1,13 +1,25 @@
-"""What `pip install fake-marlin` puts on a machine: one import root, typed, with its plugin."""
+"""What `pip install fake-marlin` puts on a machine: one import root, typed, with its plugin;
+and the checkout it is built from, whose import root is a plain folder (docs/layout.md)."""
 
 import subprocess
 import sys
+import tarfile
 import zipfile
 from pathlib import Path
 
 import pytest
 
 ROOT = Path(__file__).resolve().parent.parent
+PARTS = ("emulator", "host", "wire")
+
+
+def package_files() -> set[str]:
+    """Every file of the package as it should be installed: fake_marlin's own, and those of
+    the top-level folders its symlinks stand for, each under fake_marlin/ once."""
+    files = {f"fake_marlin/{p.name}" for p in (ROOT / "fake_marlin").iterdir() if p.is_file()}
+    for part in PARTS:
+        files |= {f"fake_marlin/{p.relative_to(ROOT)}" for p in (ROOT / part).rglob("*.py")}
+    return files
 
 
 @pytest.fixture(scope="module")
@@ -29,10 +41,9 @@ def test_the_wheel_installs_one_top_level_package_and_marks_it_typed(wheel: Path
         assert archive.read(top_level).decode().split() == ["fake_marlin"]
         (entry_points,) = [name for name in names if name.endswith(".dist-info/entry_points.txt")]
         points = archive.read(entry_points).decode()
-    assert {name.split("/")[0] for name in names if ".dist-info/" not in name} == {"fake_marlin"}
+    installed = [name for name in names if ".dist-info/" not in name]
+    assert sorted(installed) == sorted(package_files())  # each once, none missing
     assert "fake_marlin/py.typed" in names
-    for module in ("emulator/cli/main.py", "host/connect.py", "wire/gcode.py", "testing.py"):
-        assert f"fake_marlin/{module}" in names
     assert "fake_marlin = fake_marlin.pytest_plugin" in points
     assert "fake-marlin = fake_marlin.emulator.cli.main:main" in points
 
@@ -77,3 +88,32 @@ def test_both_programs_say_their_version() -> None:
         )
         assert result.returncode == 0
         assert result.stdout.strip().endswith(f" {fake_marlin.__version__}")
+
+
+def test_the_sdist_holds_each_file_once_under_the_import_root(tmp_path: Path) -> None:
+    subprocess.run(
+        [sys.executable, "-m", "build", "--sdist", "-o", str(tmp_path), str(ROOT)],
+        check=True,
+        capture_output=True,
+    )
+    (sdist,) = tmp_path.glob("fake_marlin-*.tar.gz")
+    with tarfile.open(sdist) as archive:
+        members = archive.getmembers()
+    assert not [m.name for m in members if m.issym() or m.islnk()]  # files, not links
+    names = [m.name.split("/", 1)[1] for m in members if m.isfile()]
+    python = sorted(name for name in names if name.endswith(".py") or name.endswith("py.typed"))
+    assert python == sorted(package_files())
+    assert {"pyproject.toml", "README.md", "LICENSE"} <= set(names)
+
+
+def test_from_the_checkout_without_an_install_the_parts_import_under_fake_marlin() -> None:
+    # -S: no site-packages, so no editable install's finder; the checkout root is the cwd.
+    check = (
+        "import fake_marlin.emulator.protocols.marlin, fake_marlin.wire.gcode\n"
+        "print(fake_marlin.emulator.__file__)"
+    )
+    result = subprocess.run(
+        [sys.executable, "-S", "-c", check], cwd=ROOT, capture_output=True, text=True
+    )
+    assert result.returncode == 0, result.stderr
+    assert result.stdout.strip() == str(ROOT / "fake_marlin" / "emulator" / "__init__.py")

@@ -9,5 +9,5 @@ from tests import typecheck
 
 @pytest.mark.parametrize("check", list(typecheck.CHECKS))
 def test_mypy_finds_no_error(check: str, tmp_path: Path) -> None:
-    result = typecheck.run(check, typecheck.lay_out(tmp_path))
+    result = typecheck.run(check, cache=tmp_path / "mypy-cache")
     assert result.returncode == 0, f"mypy {check}:\n{result.stdout}{result.stderr}"

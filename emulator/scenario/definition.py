@@ -5,6 +5,7 @@ with the file, the key and the problem, never as a traceback.
 """
 
 import dataclasses
+import os
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -142,7 +143,7 @@ def read_toml(path: Path) -> dict:
         raise ScenarioError(f"{path}: not valid TOML: {error}") from None
 
 
-def load(path: str | Path) -> Scenario:
+def load(path: str | os.PathLike[str]) -> Scenario:
     path = Path(path)
     top = _Reader(path, "", read_toml(path))
     name = top.get("name", str, path.stem)
