@@ -285,7 +285,7 @@ def stk500_receiver(data: bytes) -> None:
             assert message in fed, event
             body = stk500.answer(event.body)
             echo = stk500.Stk500Protocol()  # replies are framed as messages are
-            echo.receive_data(printer.send(stk500.Reply(event.seq, body)))
+            echo.receive_data(printer.send(stk500.Answer(event.seq, body)))
             assert echo.next_event() == stk500.MessageReceived(event.seq, body)
         # Waiting for the rest of at most one message: header, the longest body, checksum.
         assert len(printer._input) <= stk500.HEADER_SIZE + stk500.MAX_BODY + 1

@@ -21,7 +21,7 @@ from fake_marlin.emulator.protocols.commstack import (
 from fake_marlin.emulator.server.lifecycle import ServerConfig
 from fake_marlin.host.clients.commstack import CommStackClient
 from fake_marlin.host.connect import connect
-from fake_marlin.host.cores.commstack import SYNC_TASKS, CommStackEndpoint, Outcome, Reply
+from fake_marlin.host.cores.commstack import SYNC_TASKS, CommStackCore, Outcome, Result
 from fake_marlin.wire.commstack import (
     HEADER,
     MAX_DATA,
@@ -95,7 +95,7 @@ def test_garbage_never_crashes_either_side(data):
     while mk20.next_event() is not None:
         pass
     assert len(mk20.data_to_send()) % 10 == 0  # only empty ResponseFailed packets, if anything
-    host = CommStackEndpoint()
+    host = CommStackCore()
     host.receive_data(data)
     host.poll(0.0)
 
@@ -105,7 +105,7 @@ def test_garbage_never_crashes_either_side(data):
 def test_an_answer_that_follows_a_cut_one_in_the_same_block_is_still_heard(cut, data):
     """A frame cut short loses its 0x00, so the next frame's bytes join it: the host takes the
     whole frame at the end of such a block (campaign 2030, case 880)."""
-    host = CommStackEndpoint()
+    host = CommStackCore()
     exchange = host.start(0x41)
     host.poll(0.0)
     spoiled = encode_packet(Packet(Task.FILE_SAVE_DATA, CommType.RESPONSE_SUCCESS, b"\x07\x00"))
@@ -362,11 +362,11 @@ async def test_the_host_follows_the_print_until_the_printer_says_it_is_done(auto
             request = next(steps)
             while True:
                 if request.task in SYNC_TASKS:
-                    reply = Reply(Outcome.SUCCESS)
+                    result = Result(Outcome.SUCCESS)
                 else:
                     asked.append(request.data)
-                    reply = Reply(Outcome.SUCCESS, next(answers))
-                request = steps.send(reply)
+                    result = Result(Outcome.SUCCESS, next(answers))
+                request = steps.send(result)
         except StopIteration as done:
             return done.value
 
@@ -436,7 +436,7 @@ def test_only_a_ping_after_the_mk20_has_answered_one_of_ours_says_it_restarted()
     answer was lost; once it has, it pings no more (the line keeps order: a ping it sent before
     it handled the host's comes before the answer), unless it boots again."""
     ping = encode_packet(Packet(Task.PING, CommType.REQUEST, struct.pack("<i", 109)))
-    host = CommStackEndpoint()
+    host = CommStackCore()
     host.receive_data(ping * 2)  # the boot ping, and its repeat: our answer was lost
     assert host.printer_pings == 2 and not host.printer_restarted
     handshake = host.start(Task.PING, struct.pack("<i", 1))

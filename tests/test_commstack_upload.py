@@ -16,9 +16,9 @@ from fake_marlin.host.cores.commstack import (
     MIN_CHUNK,
     SYNC_TASKS,
     UPLOAD_ATTEMPTS,
-    Link,
+    Connection,
     Outcome,
-    Reply,
+    Result,
     Request,
     Steps,
 )
@@ -56,7 +56,7 @@ class MK20:
         self._lost: set[int] = set()
         self._refused: set[int] = set()
         self._late: Callable[[Request], bool] | None = None
-        self._held: list[tuple[int, Reply]] = []  # (task, answer) on its way, late
+        self._held: list[tuple[int, Result]] = []  # (task, answer) on its way, late
         self._chain = 0
 
     @property
@@ -75,18 +75,18 @@ class MK20:
         self._late = first
         return self
 
-    def answer(self, request: Request) -> Reply:
+    def answer(self, request: Request) -> Result:
         self.requests.append(request)
         number = len(self.requests)
         if number in self._refused or self.damaged(request):
-            own = Reply(Outcome.FAILED)
+            own = Result(Outcome.FAILED)
         else:
             data = self._carry_out(request)
-            own = Reply(Outcome.TIMEOUT) if number in self._lost else data
+            own = Result(Outcome.TIMEOUT) if number in self._lost else data
         if self._late is not None and self._late(request):
             self._late = None
             self._held, self._chain = [(request.task, own)], 2
-            return Reply(Outcome.TIMEOUT)
+            return Result(Outcome.TIMEOUT)
         if self._held:
             (task, held), self._held = self._held[0], []
             if task == request.task and held.outcome is not Outcome.TIMEOUT:
@@ -101,7 +101,7 @@ class MK20:
             return b""
         return struct.pack("<I", len(self.files[self.writing]) + extra)
 
-    def _carry_out(self, request: Request) -> Reply:
+    def _carry_out(self, request: Request) -> Result:
         data = b""
         if request.task == Task.FILE_OPEN_FOR_WRITE:
             name = json.loads(request.data.rstrip(b"\0"))["localFilePath"]
@@ -118,15 +118,15 @@ class MK20:
         elif request.task == Task.PRINT_PROJECT_WITH_ID:
             name = request.data.rstrip(b"\0").decode()
             if name not in self.files or name == self.writing:
-                return Reply(Outcome.FAILED)
+                return Result(Outcome.FAILED)
             self.selected = name
             self.prints.append(name)
         elif request.task == Task.RUN_PRINTER_GCODE:
             data = f"Current file: {self.selected or '(no file)'}\n".encode()
-        return Reply(Outcome.SUCCESS, data)
+        return Result(Outcome.SUCCESS, data)
 
 
-def drive(steps: Steps[object], printer: Callable[[Request], Reply]) -> object:
+def drive(steps: Steps[object], printer: Callable[[Request], Result]) -> object:
     try:
         request = next(steps)
         while True:
@@ -135,8 +135,8 @@ def drive(steps: Steps[object], printer: Callable[[Request], Reply]) -> object:
         return done.value
 
 
-def upload(printer: MK20, content: bytes = CONTENT, link: Link | None = None) -> None:
-    drive(commstack.upload("job.gcode", content, 8, link=link), printer.answer)
+def upload(printer: MK20, content: bytes = CONTENT, connection: Connection | None = None) -> None:
+    drive(commstack.upload("job.gcode", content, 8, connection=connection), printer.answer)
 
 
 def tasks(printer: MK20) -> list[str]:
@@ -168,11 +168,11 @@ def test_a_clean_upload_is_open_size_chunks_close():
 
 def test_chunks_start_small_and_grow_to_the_esps_128_on_a_clean_line():
     printer = MK20()
-    link = Link()
-    upload(printer, JOB, link)
+    connection = Connection()
+    upload(printer, JOB, connection)
     sent = chunks(printer)
     assert len(sent[0]) == MIN_CHUNK
-    assert max(map(len, sent)) == CHUNK_SIZE and link.chunk_size == CHUNK_SIZE
+    assert max(map(len, sent)) == CHUNK_SIZE and connection.chunk_size == CHUNK_SIZE
     assert printer.file == JOB
 
 
@@ -256,12 +256,12 @@ class NoisyLine:
     def _hit(self, size: int) -> bool:
         return self.random.random() > (1 - self.rate) ** (8 * (size + 10))
 
-    def answer(self, request: Request) -> Reply:
+    def answer(self, request: Request) -> Result:
         if self._hit(len(request.data)):
             self.printer.requests.append(request)
-            return Reply(Outcome.FAILED if self.random.random() < 0.5 else Outcome.TIMEOUT)
-        reply = self.printer.answer(request)
-        return Reply(Outcome.TIMEOUT) if self._hit(len(reply.answer) + 4) else reply
+            return Result(Outcome.FAILED if self.random.random() < 0.5 else Outcome.TIMEOUT)
+        result = self.printer.answer(request)
+        return Result(Outcome.TIMEOUT) if self._hit(len(result.answer) + 4) else result
 
 
 @pytest.mark.parametrize("seed", range(4))
@@ -282,7 +282,7 @@ def test_a_printer_that_stores_no_data_is_given_up_on():
 
 def test_a_silent_printer_is_given_up_on():
     with pytest.raises(PrinterNotResponding):
-        drive(commstack.upload("job.gcode", CONTENT, 8), lambda request: Reply(Outcome.TIMEOUT))
+        drive(commstack.upload("job.gcode", CONTENT, 8), lambda request: Result(Outcome.TIMEOUT))
 
 
 # -- printing -------------------------------------------------------------------------------
@@ -318,15 +318,15 @@ def test_a_command_that_is_not_a_report_is_not_repeated_after_silence():
 def test_a_busy_printer_is_waited_for_but_one_that_refuses_is_not():
     silent_for = iter(range(30))
     answers = lambda request: (  # noqa: E731
-        Reply(Outcome.TIMEOUT) if next(silent_for, None) is not None
-        else Reply(Outcome.SUCCESS, b"SD printing byte 5/10\n")
+        Result(Outcome.TIMEOUT) if next(silent_for, None) is not None
+        else Result(Outcome.SUCCESS, b"SD printing byte 5/10\n")
     )
     assert drive(commstack.run_gcode("M27", 8, patience=40), answers) == ("SD printing byte 5/10",)
     refusals: list[Request] = []
     with pytest.raises(PrinterNotResponding, match="refused 8 times"):
         drive(
             commstack.run_gcode("M27", 8, patience=40),
-            lambda request: refusals.append(request) or Reply(Outcome.FAILED),
+            lambda request: refusals.append(request) or Result(Outcome.FAILED),
         )
     assert len(refusals) == 8
 

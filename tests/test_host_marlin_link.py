@@ -10,7 +10,7 @@ from fake_marlin.emulator.journal.verify import Kind, verify
 from fake_marlin.emulator.server.lifecycle import ServerConfig
 from fake_marlin.host.codecs.marlin import PROBE, LineKind, Ok, encode_line, xor_checksum
 from fake_marlin.host.connect import connect
-from fake_marlin.host.cores.marlin import MarlinSender
+from fake_marlin.host.cores.marlin import MarlinCore
 from fake_marlin.host.errors import CommandError, PrinterHalted, PrinterNotResponding, PrinterReset
 from fake_marlin.host.shell import ClientOptions
 from tests.conftest import running_printer
@@ -392,14 +392,14 @@ async def test_unsendable_commands_are_refused_before_sending(autojump_clock):
 
 
 # -- the sans-IO sender alone --------------------------------------------------------------
-def synced_sender(**options) -> MarlinSender:
-    sender = MarlinSender(**options)
+def synced_sender(**options) -> MarlinCore:
+    sender = MarlinCore(**options)
     assert sender.poll(0.0) == [PROBE]
     answer(sender, 0, 0.0)
     return sender
 
 
-def answer(sender: MarlinSender, last: int, now: float, ok: bool = True) -> None:
+def answer(sender: MarlinCore, last: int, now: float, ok: bool = True) -> None:
     """The printer refuses a line: Error, Resend, ok."""
     sender.on_line_error(last, now)
     sender.on_resend(last + 1, now)
@@ -466,7 +466,7 @@ def test_an_old_answer_cannot_move_the_host_back():
 
 
 def test_a_start_line_before_the_first_answer_is_the_boot_not_a_reset():
-    sender = MarlinSender()
+    sender = MarlinCore()
     assert sender.poll(0.5) == [PROBE]
     sender.on_line(LineKind.START, "start", 0.6)
     answer(sender, 0, 0.7)
@@ -476,7 +476,7 @@ def test_a_start_line_before_the_first_answer_is_the_boot_not_a_reset():
 
 
 def test_m110_is_resent_only_when_a_later_probe_shows_it_did_not_run():
-    sender = MarlinSender()
+    sender = MarlinCore()
     assert sender.poll(0.5) == [PROBE]
     answer(sender, 5, 0.6)  # another host left the counter at 5
     assert sender.poll(0.6) == [b"\nN0 M110 N0*125\n"]
@@ -491,7 +491,7 @@ def test_m110_is_resent_only_when_a_later_probe_shows_it_did_not_run():
 
 
 def test_probes_without_answers_end_in_an_error():
-    sender = MarlinSender(max_transmissions=3)
+    sender = MarlinCore(max_transmissions=3)
     now = 0.0
     with pytest.raises(PrinterNotResponding):
         while now < 100:
@@ -500,7 +500,7 @@ def test_probes_without_answers_end_in_an_error():
     assert now <= 3 * 2.0
 
 
-def probes_until_given_up(sender: MarlinSender, answer_probe) -> int:
+def probes_until_given_up(sender: MarlinCore, answer_probe) -> int:
     """Probes the sender sends, each answered by `answer_probe(sender, now)`, until it gives up."""
     now, probes = 0.0, 0
     with pytest.raises(PrinterNotResponding, match="no believable answer"):
@@ -515,7 +515,7 @@ def probes_until_given_up(sender: MarlinSender, answer_probe) -> int:
 
 
 def test_a_silent_printer_is_given_up_on_after_max_transmissions_probes():
-    assert probes_until_given_up(MarlinSender(max_transmissions=8), lambda sender, now: None) == 8
+    assert probes_until_given_up(MarlinCore(max_transmissions=8), lambda sender, now: None) == 8
 
 
 def test_answers_that_arrive_damaged_are_no_silence_the_host_keeps_asking():
@@ -526,7 +526,7 @@ def test_answers_that_arrive_damaged_are_no_silence_the_host_keeps_asking():
         sender.on_resend(None, now)
         sender.on_ok(Ok(), (), now)
 
-    assert probes_until_given_up(MarlinSender(max_transmissions=8), damaged) == 64
+    assert probes_until_given_up(MarlinCore(max_transmissions=8), damaged) == 64
 
 
 def test_a_printer_that_counts_less_than_it_accepted_restarted():

@@ -20,7 +20,7 @@ from fake_marlin.emulator.protocols.repetier import (
 from fake_marlin.emulator.server.lifecycle import ServerConfig
 from fake_marlin.host.codecs import repetier as host_codec
 from fake_marlin.host.connect import connect
-from fake_marlin.host.cores.repetier import RepetierSender
+from fake_marlin.host.cores.repetier import RepetierCore
 from fake_marlin.host.errors import PrinterNotResponding, PrinterReset
 from fake_marlin.wire import repetier
 from fake_marlin.wire.checksums import xor8
@@ -331,7 +331,7 @@ async def test_auto_takes_high_bytes_for_noise_unless_a_command_checks_out(autoj
 FIRMWARE = "FIRMWARE_NAME:Repetier_1.0.4 FIRMWARE_URL:x PROTOCOL_VERSION:1.0 REPETIER_PROTOCOL:3"
 
 
-def say(sender: RepetierSender, text: str, now: float) -> None:
+def say(sender: RepetierCore, text: str, now: float) -> None:
     """The printer says `text` (lines ending in \\r\\n), as the host's parser reads it."""
     parser = host_codec.LineParser()
     parser.receive_data(text.encode("latin-1"))
@@ -339,7 +339,7 @@ def say(sender: RepetierSender, text: str, now: float) -> None:
         sender.on_event(event, now)
 
 
-def sent(sender: RepetierSender, now: float) -> list[int | str]:
+def sent(sender: RepetierCore, now: float) -> list[int | str]:
     """What the sender writes now: each command's line number, and "NUL" for a resync."""
     out: list[int | str] = []
     for chunk in sender.poll(now):
@@ -351,9 +351,9 @@ def sent(sender: RepetierSender, now: float) -> list[int | str]:
     return out
 
 
-def connected(firmware: str = FIRMWARE, lines: int = 0) -> RepetierSender:
+def connected(firmware: str = FIRMWARE, lines: int = 0) -> RepetierCore:
     """A sender past M110 and M115, with `lines` moves submitted (line 2 on)."""
-    sender = RepetierSender()
+    sender = RepetierCore()
     assert sent(sender, 0) == [0]
     say(sender, "ok\r\n", 0)
     assert sent(sender, 0) == [1]

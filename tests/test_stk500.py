@@ -23,7 +23,7 @@ from fake_marlin.emulator.protocols.stk500 import (
     Bootloader,
     LeftBootloader,
     MessageReceived,
-    Reply,
+    Answer,
     Stk500Protocol,
     answer,
     encode_message,
@@ -50,7 +50,7 @@ def feed(protocol: Stk500Protocol, data: bytes) -> list:
     while (event := protocol.next_event()) is not None:
         events.append(event)
         if isinstance(event, MessageReceived):
-            protocol.send(Reply(event.seq, answer(event.body)))
+            protocol.send(Answer(event.seq, answer(event.body)))
     return events
 
 
@@ -58,7 +58,7 @@ def reply_to(seq: int, body: bytes) -> bytes:
     protocol = Stk500Protocol()
     protocol.receive_data(encode_message(seq, body))
     event = protocol.next_event()
-    return protocol.send(Reply(event.seq, answer(event.body)))
+    return protocol.send(Answer(event.seq, answer(event.body)))
 
 
 # -- the wire, against docs/protocols.md section 4 -------------------------------------------

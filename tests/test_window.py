@@ -3,7 +3,7 @@
 import pytest
 
 from fake_marlin.host.cores.queue import is_long_command
-from fake_marlin.host.cores.ultimaker import GoBackNWindow
+from fake_marlin.host.cores.ultimaker import UltimakerCore
 from fake_marlin.host.errors import PrinterNotResponding, PrinterReset
 
 
@@ -12,7 +12,7 @@ def seqs(transmits):
 
 
 def loaded(n, **options):
-    window = GoBackNWindow(**options)
+    window = UltimakerCore(**options)
     tickets = [window.submit(f"G1 X{i}") for i in range(n)]
     return window, tickets
 
@@ -168,7 +168,7 @@ def test_a_full_planner_is_probed_and_given_up_on_only_after_long_silence():
 
 
 def test_a_long_command_at_the_head_buys_patience():
-    window = GoBackNWindow(timeout=2.0, long_timeout=60.0)
+    window = UltimakerCore(timeout=2.0, long_timeout=60.0)
     window.submit("G28")
     window.submit("G1 X1")
     window.poll(0.0)

@@ -8,7 +8,7 @@ firmware on the same open connection.
 Bytes from the host go in through receive_data(); next_event() yields each well-formed message,
 and after LEAVE the hand-over with the bytes that followed it, which are the firmware's to read.
 Bootloader.answer() is the reply stk500boot.c builds for a message, acting on the board's
-memories (avr_memory.BoardMemory); send(Reply) frames it for the host.
+memories (avr_memory.BoardMemory); send(Answer) frames it for the host.
 """
 
 from dataclasses import dataclass
@@ -210,7 +210,7 @@ Event = MessageReceived | LeftBootloader
 
 # Events in.
 @dataclass(frozen=True)
-class Reply:
+class Answer:
     seq: int  # the sequence number of the message answered: replies echo it
     body: bytes
 
@@ -277,8 +277,8 @@ class Stk500Protocol:
             return MessageReceived(seq, body)
 
     # -- sending -----------------------------------------------------------------------
-    def send(self, event: Reply) -> bytes:
-        if not isinstance(event, Reply):
+    def send(self, event: Answer) -> bytes:
+        if not isinstance(event, Answer):
             raise TypeError(f"cannot send {event!r}")
         self._output += encode_message(event.seq, event.body)
         return self.data_to_send()

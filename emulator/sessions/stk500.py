@@ -15,7 +15,7 @@ from fake_marlin.emulator.protocols.stk500 import (
     Bootloader,
     LeftBootloader,
     MessageReceived,
-    Reply,
+    Answer,
     Stk500Protocol,
 )
 from fake_marlin.emulator.sessions.base import HandsOver, Session
@@ -68,7 +68,7 @@ class Stk500Session:
                 reply = self.bootloader.answer(event.body)
                 if self.bootloader.memory.has_changed_pages:
                     self._flash_changed()
-                self._send(self.protocol.send(Reply(event.seq, reply)))
+                self._send(self.protocol.send(Answer(event.seq, reply)))
             elif isinstance(event, LeftBootloader):
                 self._jump_to_firmware(event.rest)
 

@@ -10,7 +10,7 @@ neither that nor its progress, such as a late answer to `M27 C` or one damaged p
 checksum, is asked again), and reports a ping since the Ping's answer as a restart. The rules
 that make each step happen exactly once are sans-IO, in fake_marlin.host.cores.commstack; this
 client carries their requests to the endpoint and the replies back, and keeps what they share
-over the connection (a Link).
+over the connection (a commstack.Connection).
 """
 
 import math
@@ -23,7 +23,13 @@ from typing import TypeVar
 import trio
 
 from fake_marlin.host.cores import commstack
-from fake_marlin.host.cores.commstack import CommStackEndpoint, CommStackStats, Link, Reply, Steps
+from fake_marlin.host.cores.commstack import (
+    CommStackCore,
+    CommStackStats,
+    Connection,
+    Result,
+    Steps,
+)
 from fake_marlin.host.errors import PrinterNotResponding, PrinterReset
 from fake_marlin.host.gcode_file import read_job
 from fake_marlin.host.shell import (
@@ -55,25 +61,25 @@ class CommStackClient(Client):
     check_command = staticmethod(commstack.check_command)
 
     def _open(self, options: ClientOptions) -> None:
-        self._endpoint = CommStackEndpoint(options.timeout)
-        self._link = Link()
+        self._core = CommStackCore(options.timeout)
+        self._connection = Connection()
 
     @property
     def stats(self) -> CommStackStats:
-        return self._endpoint.stats
+        return self._core.stats
 
     # -- the shell's hooks ------------------------------------------------------------------
     def _feed(self, data: bytes) -> None:
-        self._endpoint.receive_data(data)
-        self.corrupt_frames = self._endpoint.stats.corrupt_frames
+        self._core.receive_data(data)
+        self.corrupt_frames = self._core.stats.corrupt_frames
         self._notify()  # an exchange may have ended
         self._sender_wake.set()  # the MK20's pings want answers
 
     def _poll(self, now: float) -> list[bytes]:
-        return self._endpoint.poll(now)
+        return self._core.poll(now)
 
     def _next_deadline(self) -> float | None:
-        return self._endpoint.next_deadline()
+        return self._core.next_deadline()
 
     async def _run(self, steps: Steps[T]) -> T:
         """Carry a sans-IO procedure's requests to the printer, one at a time."""
@@ -81,11 +87,11 @@ class CommStackClient(Client):
             request = next(steps)
             while True:
                 self.stats.resends += request.resend
-                exchange = self._endpoint.start(request.task, request.data)
+                exchange = self._core.start(request.task, request.data)
                 self._sender_wake.set()
                 await self._wait_until(lambda: exchange.outcome is not None)
                 assert exchange.outcome is not None
-                request = steps.send(Reply(exchange.outcome, exchange.answer))
+                request = steps.send(Result(exchange.outcome, exchange.answer))
         except StopIteration as done:
             result: T = done.value
             return result
@@ -106,14 +112,16 @@ class CommStackClient(Client):
     ) -> None:
         """Store `content` on the SD card as `name`, exactly."""
         await self._run(
-            commstack.upload(name, content, self.options.max_transmissions, progress, self._link)
+            commstack.upload(
+                name, content, self.options.max_transmissions, progress, self._connection
+            )
         )
 
     async def start_print(self, name: str) -> None:
         """Start printing `name` from the card, once."""
         await self._run(
             commstack.start_print(
-                name, self.options.max_transmissions, self._link, self._patience()
+                name, self.options.max_transmissions, self._connection, self._patience()
             )
         )
 
@@ -122,7 +130,8 @@ class CommStackClient(Client):
 
         A printer that is printing may answer nothing for long (PRINT_PATIENCE)."""
         tries, patience = self.options.max_transmissions, self._patience()
-        await self._run(commstack.sync(self._link, tries, patience))  # late M27 C answers first
+        # Late M27 C answers first.
+        await self._run(commstack.sync(self._connection, tries, patience))
         unclear = 0
         while True:
             status = " ".join(await self._run(commstack.run_gcode("M27", tries, patience)))
@@ -162,7 +171,7 @@ class CommStackClient(Client):
         since = self._snapshot()
         await self._run(
             commstack.store_and_print(
-                name, content, self.options.max_transmissions, None, self._link,
+                name, content, self.options.max_transmissions, None, self._connection,
                 self._patience(),
             )
         )
@@ -177,8 +186,8 @@ class CommStackClient(Client):
         # store_and_print's handshake made the MK20 stop pinging before the print began: a
         # ping since then is a boot, not a repeat of one whose answer was lost.
         with trio.move_on_after(BOOT_PINGS_WITHIN):
-            await self._wait_until(lambda: self._endpoint.printer_restarted)
-        if self._endpoint.printer_restarted:
+            await self._wait_until(lambda: self._core.printer_restarted)
+        if self._core.printer_restarted:
             raise PrinterReset(
                 "the printer restarted during the print (it pinged as it booted): what it had "
                 "not printed yet is lost"

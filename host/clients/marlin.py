@@ -4,7 +4,7 @@
 import trio
 
 from fake_marlin.host.codecs import marlin
-from fake_marlin.host.cores.marlin import MarlinSender
+from fake_marlin.host.cores.marlin import MarlinCore
 from fake_marlin.host.shell import ClientOptions, StreamingClient
 
 
@@ -20,7 +20,7 @@ class MarlinClient(StreamingClient):
 
     def _open(self, options: ClientOptions) -> None:
         self._parser = marlin.LineParser()
-        self._core = self._sender = MarlinSender(
+        self._core = self._sender = MarlinCore(
             timeout=options.timeout,
             long_timeout=options.long_timeout,
             received_timeout=options.received_timeout,

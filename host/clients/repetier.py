@@ -5,7 +5,7 @@ import trio
 
 from fake_marlin.host.codecs import repetier
 from fake_marlin.host.cores.queue import Ticket
-from fake_marlin.host.cores.repetier import RepetierSender
+from fake_marlin.host.cores.repetier import RepetierCore
 from fake_marlin.host.shell import ClientOptions, StreamingClient
 
 
@@ -19,7 +19,7 @@ class RepetierClient(StreamingClient):
 
     def _open(self, options: ClientOptions) -> None:
         self._parser = repetier.LineParser()
-        self._core = self._sender = RepetierSender(
+        self._core = self._sender = RepetierCore(
             timeout=options.timeout,
             long_timeout=options.long_timeout,
             max_transmissions=options.max_transmissions,

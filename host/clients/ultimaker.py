@@ -15,7 +15,7 @@ from fake_marlin.host.codecs.ultimaker import (
     check_command,
     encode_command,
 )
-from fake_marlin.host.cores.ultimaker import GoBackNWindow
+from fake_marlin.host.cores.ultimaker import UltimakerCore
 from fake_marlin.host.errors import PrinterHalted
 from fake_marlin.host.shell import ClientOptions, StreamingClient
 
@@ -26,7 +26,7 @@ class UltimakerClient(StreamingClient):
 
     def _open(self, options: ClientOptions) -> None:
         self._parser = FrameParser()
-        self._core = self._window = GoBackNWindow(
+        self._core = self._window = UltimakerCore(
             window=options.window,
             timeout=options.timeout,
             long_timeout=options.long_timeout,

@@ -1,7 +1,7 @@
 """The ESP's end of CommStack, sans-IO: the exchange of one request at a time, and the rules
 that store a file on the printer's card and print it exactly once.
 
-`CommStackEndpoint` is the wire's state machine: one request in flight, its answer matched by task
+`CommStackCore` is the wire's state machine: one request in flight, its answer matched by task
 (CommStack has no sequence numbers), and the MK20's own pings answered.
 
 What an exchange can end in (Exchange.outcome):
@@ -13,7 +13,7 @@ What an exchange can end in (Exchange.outcome):
 - TIMEOUT: no answer for `timeout` seconds. The request may have been lost, or its answer.
 
 The rules above the exchange (`run_gcode`, `upload`, `start_print`) are generators: each yields
-the next `Request` and is sent the `Reply` it got, so that the client only carries requests to
+the next `Request` and is sent the `Result` it got, so that the client only carries requests to
 the endpoint and replies back, and a test can play the printer's part with no I/O at all.
 
 Fresh answers. The line keeps order and the MK20 answers its requests in turn, so once the
@@ -40,7 +40,7 @@ position cancel out in the MK20's byte sum and pass unseen (at 1e-3 per bit, abo
 of the 128-byte chunks that are accepted; 1 in 3000 of 8-byte ones). So chunks start at
 MIN_CHUNK, double after GROW_AFTER bytes stored at the first try, up to CHUNK_SIZE, and fall to
 MIN_CHUNK again whenever one is damaged on its way (a lost answer says nothing of that way).
-Until they are back at CHUNK_SIZE a line end goes in a chunk of its own (`Link.next_chunk`).
+Until they are back at CHUNK_SIZE a line end goes in a chunk of its own (`Connection.next_chunk`).
 
 A print request that is not answered with a success is checked with `M27 C` (which file is
 selected), after a sync, before it is sent again. A file the printer will not print is stored
@@ -50,7 +50,7 @@ Restarts. The MK20 says nothing as it boots but its pings, which it repeats ever
 hears from the ESP: a ping may be a boot, or a repeat of one whose answer the line lost. Once
 the MK20 has answered a Ping of ours (`handshake`, before the print request) it pings no more
 until it boots again, so a ping after that answer is a restart
-(`CommStackEndpoint.printer_restarted`).
+(`CommStackCore.printer_restarted`).
 """
 
 import itertools
@@ -129,7 +129,7 @@ def _frame_after_a_cut(frame: bytes) -> Packet | None:
     return None
 
 
-class CommStackEndpoint:
+class CommStackCore:
     def __init__(self, timeout: float = 2.0) -> None:
         self.timeout = timeout
         self.stats = CommStackStats()
@@ -226,16 +226,16 @@ class Request:
 
 
 @dataclass(frozen=True)
-class Reply:
+class Result:
     outcome: Outcome
     answer: bytes = b""
 
 
 T = TypeVar("T")
-Steps = Generator[Request, Reply, T]
+Steps = Generator[Request, Result, T]
 
 
-class Link:
+class Connection:
     """What the rules share over one connection: the sync task IDs handed out, and the chunk
     size the line has allowed lately."""
 
@@ -297,37 +297,39 @@ def request(
     command in hand, however long that takes); refusals still give up after
     `max_transmissions` running. Returns the success's data."""
     tries = max_transmissions if patience is None else max(patience, max_transmissions)
-    reply = Reply(Outcome.TIMEOUT)
+    result = Result(Outcome.TIMEOUT)
     refusals = 0
     for attempt in range(tries):
-        reply = yield Request(task, data, resend=attempt > 0)
-        if reply.outcome is Outcome.SUCCESS:
-            return reply.answer
-        if reply.outcome is Outcome.TIMEOUT and not retry_on_timeout:
+        result = yield Request(task, data, resend=attempt > 0)
+        if result.outcome is Outcome.SUCCESS:
+            return result.answer
+        if result.outcome is Outcome.TIMEOUT and not retry_on_timeout:
             raise PrinterNotResponding(
                 f"no answer to {task.name}; it may or may not have been carried out"
             )
-        refusals = refusals + 1 if reply.outcome is Outcome.FAILED else 0
+        refusals = refusals + 1 if result.outcome is Outcome.FAILED else 0
         if refusals >= max_transmissions:
             break
-    if reply.outcome is Outcome.FAILED and refused is not None:
+    if result.outcome is Outcome.FAILED and refused is not None:
         raise UploadFailed(refused)
-    what = "refused" if reply.outcome is Outcome.FAILED else "unanswered"
-    count = refusals if reply.outcome is Outcome.FAILED else tries
+    what = "refused" if result.outcome is Outcome.FAILED else "unanswered"
+    count = refusals if result.outcome is Outcome.FAILED else tries
     raise PrinterNotResponding(
         f"{task.name} {what} {count} times; is a Printrbot (CommStack) on the port?"
     )
 
 
-def sync(link: Link, max_transmissions: int, patience: int | None = None) -> Steps[None]:
+def sync(
+    connection: Connection, max_transmissions: int, patience: int | None = None
+) -> Steps[None]:
     """Until the printer has answered everything sent before (see the module's docstring)."""
     tries = max_transmissions if patience is None else max(patience, max_transmissions)
     refusals = 0
     for _ in range(tries):
-        reply = yield Request(link.next_sync_task())
-        if reply.outcome is Outcome.SUCCESS:
+        result = yield Request(connection.next_sync_task())
+        if result.outcome is Outcome.SUCCESS:
             return
-        refusals = refusals + 1 if reply.outcome is Outcome.FAILED else 0
+        refusals = refusals + 1 if result.outcome is Outcome.FAILED else 0
         if refusals >= max_transmissions:
             break
     raise PrinterNotResponding(
@@ -338,7 +340,7 @@ def sync(link: Link, max_transmissions: int, patience: int | None = None) -> Ste
 def handshake(max_transmissions: int, patience: int | None = None) -> Steps[None]:
     """A Ping of our own, until the MK20 answers it. Handling it sets `_espOK` (mk20
     Application::runTask), which stops the MK20's pings until it boots again: from the answer
-    on, a ping from the printer says it restarted (CommStackEndpoint.printer_restarted). Before
+    on, a ping from the printer says it restarted (CommStackCore.printer_restarted). Before
     it, a ping may repeat one whose answer the line lost. Harmless to repeat."""
     yield from request(
         Task.PING, struct.pack("<i", BUILD_NUMBER), max_transmissions, patience=patience
@@ -369,17 +371,19 @@ def check_halt(lines: Iterable[str]) -> None:
 
 def upload(
     name: str, content: bytes, max_transmissions: int,
-    progress: Callable[[int], None] | None = None, link: Link | None = None,
+    progress: Callable[[int], None] | None = None, connection: Connection | None = None,
 ) -> Steps[None]:
     """Store `content` on the SD card as `name`, exactly; `progress` gets the bytes stored."""
-    link = Link() if link is None else link
+    connection = Connection() if connection is None else connection
     header = {"localFilePath": name, "showUI": False, "fileSize": len(content), "compression": 1}
     opened = json.dumps(header, separators=(",", ":")).encode() + b"\0"
     if len(opened) > MAX_DATA:
         raise CommandError(f"the file name {name!r} is too long for FileOpenForWrite")
     went_wrong: Counter[int] = Counter()
     while True:
-        wrong = yield from _upload_once(name, opened, content, link, max_transmissions, progress)
+        wrong = yield from _upload_once(
+            name, opened, content, connection, max_transmissions, progress
+        )
         if wrong is None:
             return
         where, why = wrong
@@ -395,7 +399,7 @@ Wrong = tuple[int, str]  # where the file on the card went wrong, and how
 
 
 def _upload_once(
-    name: str, opened: bytes, content: bytes, link: Link, max_transmissions: int,
+    name: str, opened: bytes, content: bytes, connection: Connection, max_transmissions: int,
     progress: Callable[[int], None] | None,
 ) -> Steps[Wrong | None]:
     """One upload from an empty file: None once the file is `content`."""
@@ -406,7 +410,7 @@ def _upload_once(
     yield from request(Task.FILE_SET_SIZE, struct.pack("<I", len(content)), max_transmissions)
     offset = 0
     while offset < len(content):
-        stored = yield from _store_chunk(content, offset, link, max_transmissions)
+        stored = yield from _store_chunk(content, offset, connection, max_transmissions)
         if isinstance(stored, tuple):
             return stored
         offset += stored
@@ -420,7 +424,7 @@ def _upload_once(
 
 
 def _store_chunk(
-    content: bytes, offset: int, link: Link, max_transmissions: int
+    content: bytes, offset: int, connection: Connection, max_transmissions: int
 ) -> Steps[int | Wrong]:
     """Append the next chunk of `content` to the file, which holds `offset` bytes and has no
     data on the way to it, once. Returns how many bytes were stored, or how the file went
@@ -431,66 +435,69 @@ def _store_chunk(
     tries_at_smallest = 0
     missed = False
     while True:
-        chunk = link.next_chunk(content, offset)
+        chunk = connection.next_chunk(content, offset)
         end = offset + len(chunk)
         tries_at_smallest += len(chunk) <= MIN_CHUNK
-        reply = yield Request(Task.FILE_SAVE_DATA, chunk, resend=missed)
-        if reply.outcome is Outcome.SUCCESS:
-            length = stored_length(reply.answer)
+        result = yield Request(Task.FILE_SAVE_DATA, chunk, resend=missed)
+        if result.outcome is Outcome.SUCCESS:
+            length = stored_length(result.answer)
             if length is None or length == end:  # the chunk's own answer
-                link.chunk_stored(len(chunk), at_first_try=not missed)
+                connection.chunk_stored(len(chunk), at_first_try=not missed)
                 return len(chunk)
             if length > offset:
                 return offset, f"the file held {length} bytes"
             # An older length: a late answer to an earlier request. This one's is to come.
-        length = yield from _length_now(link, max_transmissions)
+        length = yield from _length_now(connection, max_transmissions)
         if length is None:  # a printer that does not say: only a refusal is safe to repeat
-            if reply.outcome is not Outcome.FAILED:
+            if result.outcome is not Outcome.FAILED:
                 return offset, "a chunk went unanswered and the printer does not say the length"
         elif length == end:
-            link.chunk_stored(len(chunk), at_first_try=False)
+            connection.chunk_stored(len(chunk), at_first_try=False)
             return len(chunk)
         elif length != offset:
             return offset, f"the file held {length} bytes"
         missed = True
-        link.chunk_missed()
+        connection.chunk_missed()
         if tries_at_smallest >= max_transmissions:
             return offset, (
                 f"the printer stored none of {max_transmissions} chunks of {MIN_CHUNK} bytes"
             )
 
 
-def _length_now(link: Link, max_transmissions: int) -> Steps[int | None]:
+def _length_now(connection: Connection, max_transmissions: int) -> Steps[int | None]:
     """The open file's length once everything sent before has been carried out (None: the
     printer does not say): a sync, then an empty FileSaveData. Asking again is safe, as no
     data is on the way: any answer to it is the same."""
-    yield from sync(link, max_transmissions)
+    yield from sync(connection, max_transmissions)
     # The sync was answered: the printer is there, and this question is safe to repeat, so
     # ask longer than for a request that could not be. Each answer cut short also takes the
     # next with it (the bytes left without their 0x00 spoil the frame after them), so at a
     # few percent of damaged frames eight tries in a row can all be lost.
     for _ in range(LENGTH_TRIES * max_transmissions):
-        reply = yield Request(Task.FILE_SAVE_DATA, b"")
-        if reply.outcome is Outcome.SUCCESS:
-            return stored_length(reply.answer)
+        result = yield Request(Task.FILE_SAVE_DATA, b"")
+        if result.outcome is Outcome.SUCCESS:
+            return stored_length(result.answer)
     raise PrinterNotResponding("no answer to FileSaveData; is a Printrbot on the port?")
 
 
 def start_print(
-    name: str, max_transmissions: int, link: Link | None = None, patience: int | None = None
+    name: str,
+    max_transmissions: int,
+    connection: Connection | None = None,
+    patience: int | None = None,
 ) -> Steps[None]:
     """PrintProjectWithID, once: a second would print the file again if the first already ran,
     so an answer that is not a success is checked with `M27 C`, after a sync (the request has
     been carried out by then, if it ever will be), before the request goes again. The print
     may have begun, and the printer be busy with its first command: `patience` (as for
     `request`) for the sync and the check."""
-    if not (yield from _start_print(name, max_transmissions, link, patience)):
+    if not (yield from _start_print(name, max_transmissions, connection, patience)):
         raise UploadFailed(f"the printer would not print {name}")
 
 
 def store_and_print(
     name: str, content: bytes, max_transmissions: int,
-    progress: Callable[[int], None] | None = None, link: Link | None = None,
+    progress: Callable[[int], None] | None = None, connection: Connection | None = None,
     patience: int | None = None,
 ) -> Steps[None]:
     """`upload`, then `start_print`; a file the printer will not print is stored again (a name
@@ -501,26 +508,28 @@ def store_and_print(
     restarted, and one that restarts during the print can be told from one that merely repeats
     a ping whose answer was lost. Only before the first: a print request whose answer is lost
     may have started the print, and a restart after it must still show."""
-    link = Link() if link is None else link
+    connection = Connection() if connection is None else connection
     for attempt in range(UPLOAD_ATTEMPTS):
-        yield from upload(name, content, max_transmissions, progress, link)
+        yield from upload(name, content, max_transmissions, progress, connection)
         if attempt == 0:
             yield from handshake(max_transmissions, patience)
-        if (yield from _start_print(name, max_transmissions, link, patience)):
+        if (yield from _start_print(name, max_transmissions, connection, patience)):
             return
     raise UploadFailed(f"the printer would not print {name}, stored {UPLOAD_ATTEMPTS} times")
 
 
 def _start_print(
-    name: str, max_transmissions: int, link: Link | None, patience: int | None
+    name: str, max_transmissions: int, connection: Connection | None, patience: int | None
 ) -> Steps[bool]:
     """start_print's rule: False if the printer refused every try and selected nothing."""
-    link = Link() if link is None else link
+    connection = Connection() if connection is None else connection
     for attempt in range(max_transmissions):
-        reply = yield Request(Task.PRINT_PROJECT_WITH_ID, name.encode() + b"\0", resend=attempt > 0)
-        if reply.outcome is Outcome.SUCCESS:
+        result = yield Request(
+            Task.PRINT_PROJECT_WITH_ID, name.encode() + b"\0", resend=attempt > 0
+        )
+        if result.outcome is Outcome.SUCCESS:
             return True
-        yield from sync(link, max_transmissions, patience)
+        yield from sync(connection, max_transmissions, patience)
         selected = " ".join((yield from run_gcode("M27 C", max_transmissions, patience)))
         if "Current file:" in selected and PurePath(name).name in selected.split():
             return True

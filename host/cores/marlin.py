@@ -122,7 +122,7 @@ class MarlinStats:
     probes: int = 0
 
 
-class MarlinSender(CommandQueue):
+class MarlinCore(CommandQueue):
     def __init__(
         self,
         timeout: float = 2.0,

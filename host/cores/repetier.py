@@ -104,7 +104,7 @@ class RepetierStats:
     rewinds: int = 0  # Resends for lines already acknowledged: the acknowledgement was wrong
 
 
-class RepetierSender(CommandQueue):
+class RepetierCore(CommandQueue):
     def __init__(
         self,
         timeout: float = 2.0,

@@ -55,7 +55,7 @@ class Transmit:
 
 
 @dataclass
-class WindowStats:
+class UltimakerStats:
     packets_sent: int = 0
     resends: int = 0
     timeouts: int = 0
@@ -64,14 +64,14 @@ class WindowStats:
 
 
 @dataclass
-class GoBackNWindow(CommandQueue):
+class UltimakerCore(CommandQueue):
     window: int = 3
     timeout: float = 2.0
     long_timeout: float = 300.0
     received_timeout: float = 10.0
     max_transmissions: int = 8
     first_seq: int = 0
-    stats: WindowStats = field(default_factory=WindowStats)
+    stats: UltimakerStats = field(default_factory=UltimakerStats)
 
     def __post_init__(self) -> None:
         if not 1 <= self.window <= 32:
