@@ -6,6 +6,7 @@
 """
 
 from fake_marlin.host.connect import DEFAULT_BAUDRATE, PROTOCOLS, connect, load_job, open_printer
+from fake_marlin.host.cores.base import PrinterLine, Stats
 from fake_marlin.host.cores.queue import Ticket
 from fake_marlin.host.errors import (
     CommandError,
@@ -24,10 +25,8 @@ from fake_marlin.host.shell import (
     Client,
     ClientOptions,
     LineCallback,
-    PrinterLine,
     PrintSummary,
     ProgressCallback,
-    Stats,
     StreamingClient,
 )
 

@@ -1,6 +1,6 @@
 """The trio shell every host client shares: one reader task, one sender task behind a send lock,
-and a sans-IO core. Each protocol brings its parser and its core (fake_marlin.host.cores) in a thin
-client (fake_marlin.host.clients).
+and a sans-IO core. Each protocol brings its core (fake_marlin.host.cores: a HostCore, which
+reads the printer's bytes itself) in a thin client (fake_marlin.host.clients).
 
 `Client` is what `open_printer` and `connect` give: `send` a command, `print_commands` or
 `print_file` a job, read `stats`. `StreamingClient` adds `submit` and `wait_idle` for the protocols
@@ -12,17 +12,15 @@ import math
 from abc import ABC, abstractmethod
 from collections.abc import Awaitable, Callable, Iterable
 from dataclasses import asdict, dataclass
-from typing import Any, ClassVar, Protocol
+from typing import ClassVar, Protocol
 
 import trio
 
-from fake_marlin.host.codecs import marlin, ultimaker
+from fake_marlin.host.cores.base import HostCore, PrinterLine, Stats, StreamingCore
 from fake_marlin.host.cores.queue import Ticket
 from fake_marlin.host.errors import HostError
 from fake_marlin.host.gcode_file import checked_job
 
-# A line the printer printed that is not a command's response data (marlin.Line serves Repetier).
-PrinterLine = ultimaker.Line | marlin.Line
 LineCallback = Callable[[PrinterLine], None]
 ProgressCallback = Callable[[int], None]
 
@@ -30,32 +28,6 @@ ProgressCallback = Callable[[int], None]
 class ByteStream(Protocol):
     async def receive_some(self, max_bytes: int | None = ...) -> bytes: ...
     async def send_all(self, data: bytes) -> None: ...
-
-
-class Stats(Protocol):
-    """What every core counts: a dataclass with these fields, and perhaps more."""
-
-    __dataclass_fields__: ClassVar[dict[str, Any]]
-    packets_sent: int
-    resends: int
-    timeouts: int
-    rejects: int
-    unconfirmed: int
-
-
-class QueueCore(Protocol):
-    """A core that streams commands: a CommandQueue with a window (fake_marlin.host.cores)."""
-
-    @property
-    def stats(self) -> Stats: ...
-    @property
-    def backlog(self) -> int: ...
-    @property
-    def window(self) -> int: ...
-    @property
-    def idle(self) -> bool: ...
-    def submit(self, text: str) -> Ticket: ...
-    def next_deadline(self) -> float | None: ...
 
 
 @dataclass(frozen=True)
@@ -96,10 +68,10 @@ class _Snapshot:
 
 
 class Client(ABC):
-    """A printer on a byte stream. A protocol's client implements `_feed` (bytes from the
-    printer), `_poll` (bytes to write now) and `_next_deadline` (when to poll unasked)."""
+    """A printer on a byte stream, through a protocol's sans-IO core (made by `_open`)."""
 
     protocol: ClassVar[str]
+    _core: HostCore
     # Whether the sender waits (up to options.settle) for the printer's greeting first.
     waits_for_greeting: ClassVar[bool] = True
 
@@ -130,20 +102,32 @@ class Client(ABC):
 
     @abstractmethod
     def _open(self, options: ClientOptions) -> None:
-        """Make the protocol's parser and core (once, as the client is made)."""
+        """Make the protocol's core, `self._core` (once, as the client is made)."""
 
     @property
-    @abstractmethod
-    def stats(self) -> Stats: ...
+    def stats(self) -> Stats:
+        return self._core.stats
 
-    @abstractmethod
-    def _feed(self, data: bytes) -> None: ...
+    def _feed(self, data: bytes) -> None:
+        """The printer's bytes: the core handles them, and says what to show the caller."""
+        core = self._core
+        core.receive_data(data, trio.current_time())
+        try:
+            while (line := core.next_event()) is not None:
+                self._on_line(line)
+        finally:
+            self.room = core.room
+            self.corrupt_frames = core.corrupt_frames
+            if core.greeted:
+                self._printer_seen.set()
+            self._heard()
 
-    @abstractmethod
-    def _poll(self, now: float) -> list[bytes]: ...
+    def _heard(self) -> None:
+        """The core has handled what came: deadlines moved, or there is something to send."""
+        self._sender_wake.set()
 
-    @abstractmethod
-    def _next_deadline(self) -> float | None: ...
+    def _poll(self, now: float) -> list[bytes]:
+        return self._core.poll(now)
 
     # -- the background tasks -----------------------------------------------------------
     async def run(self, cancel_scope: trio.CancelScope) -> None:
@@ -179,7 +163,7 @@ class Client(ABC):
                     await self._stream.send_all(data)
             # poll() may have moved commands out of the backlog, or completed some.
             self._notify()
-            deadline = self._next_deadline()
+            deadline = self._core.next_deadline()
             with trio.move_on_at(math.inf if deadline is None else deadline):
                 await wake.wait()
 
@@ -219,9 +203,9 @@ class Client(ABC):
 
 
 class StreamingClient(Client):
-    """A client whose core is a CommandQueue: commands are submitted, streamed and completed."""
+    """A client whose core streams commands: they are submitted, streamed and completed."""
 
-    _core: QueueCore
+    _core: StreamingCore
     # How many completed commands may not have run yet: where an acknowledgement means
     # "queued", it runs ahead of execution by what the printer holds (Repetier).
     acknowledged_ahead: ClassVar[int] = 0
@@ -232,12 +216,14 @@ class StreamingClient(Client):
         that lost the port resumes. What comes after may run twice; nothing is lost."""
         return max(0, self.completed - self.acknowledged_ahead)
 
-    @property
-    def stats(self) -> Stats:
-        return self._core.stats
+    def _heard(self) -> None:
+        self._completed(self._core.take_completed())
+        super()._heard()
 
-    def _next_deadline(self) -> float | None:
-        return self._core.next_deadline()
+    def _poll(self, now: float) -> list[bytes]:
+        data = self._core.poll(now)
+        self._completed(self._core.take_completed())
+        return data
 
     def _completed(self, tickets: list[Ticket]) -> None:
         if tickets:

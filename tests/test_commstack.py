@@ -96,7 +96,7 @@ def test_garbage_never_crashes_either_side(data):
         pass
     assert len(mk20.data_to_send()) % 10 == 0  # only empty ResponseFailed packets, if anything
     host = CommStackCore()
-    host.receive_data(data)
+    host.receive_data(data, 0.0)
     host.poll(0.0)
 
 
@@ -109,7 +109,9 @@ def test_an_answer_that_follows_a_cut_one_in_the_same_block_is_still_heard(cut, 
     exchange = host.start(0x41)
     host.poll(0.0)
     spoiled = encode_packet(Packet(Task.FILE_SAVE_DATA, CommType.RESPONSE_SUCCESS, b"\x07\x00"))
-    host.receive_data(spoiled[:cut] + encode_packet(Packet(0x41, CommType.RESPONSE_SUCCESS, data)))
+    host.receive_data(
+        spoiled[:cut] + encode_packet(Packet(0x41, CommType.RESPONSE_SUCCESS, data)), 0.0
+    )
     assert exchange.outcome is Outcome.SUCCESS and exchange.answer == data
     assert host.stats.corrupt_frames == 1
 
@@ -437,13 +439,13 @@ def test_only_a_ping_after_the_mk20_has_answered_one_of_ours_says_it_restarted()
     it handled the host's comes before the answer), unless it boots again."""
     ping = encode_packet(Packet(Task.PING, CommType.REQUEST, struct.pack("<i", 109)))
     host = CommStackCore()
-    host.receive_data(ping * 2)  # the boot ping, and its repeat: our answer was lost
+    host.receive_data(ping * 2, 0.0)  # the boot ping, and its repeat: our answer was lost
     assert host.printer_pings == 2 and not host.printer_restarted
     handshake = host.start(Task.PING, struct.pack("<i", 1))
     host.poll(0.0)
-    host.receive_data(ping)  # sent before the MK20 read our Ping: it crossed ours on the line
+    host.receive_data(ping, 0.0)  # sent before the MK20 read our Ping: it crossed ours on the line
     assert not host.printer_restarted
-    host.receive_data(encode_packet(Packet(Task.PING, CommType.RESPONSE_SUCCESS, b"m\0\0\0")))
+    host.receive_data(encode_packet(Packet(Task.PING, CommType.RESPONSE_SUCCESS, b"m\0\0\0")), 0.0)
     assert handshake.outcome is Outcome.SUCCESS and not host.printer_restarted
-    host.receive_data(ping)
+    host.receive_data(ping, 0.0)
     assert host.printer_restarted and host.printer_pings == 4

@@ -332,11 +332,10 @@ FIRMWARE = "FIRMWARE_NAME:Repetier_1.0.4 FIRMWARE_URL:x PROTOCOL_VERSION:1.0 REP
 
 
 def say(sender: RepetierCore, text: str, now: float) -> None:
-    """The printer says `text` (lines ending in \\r\\n), as the host's parser reads it."""
-    parser = host_codec.LineParser()
-    parser.receive_data(text.encode("latin-1"))
-    while (event := parser.next_event()) is not None:
-        sender.on_event(event, now)
+    """The printer says `text` (lines ending in \\r\\n), and the core reads it."""
+    sender.receive_data(text.encode("latin-1"), now)
+    while sender.next_event() is not None:
+        pass
 
 
 def sent(sender: RepetierCore, now: float) -> list[int | str]:

@@ -10,7 +10,12 @@ import sys
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
-STRICT = ("fake_marlin.wire", "fake_marlin.emulator.protocols", "fake_marlin.host.codecs")
+STRICT = (
+    "fake_marlin.wire",
+    "fake_marlin.emulator.protocols",
+    "fake_marlin.host.codecs",
+    "fake_marlin.host.cores",
+)
 CHECKS = {
     "strict": ["--strict", *(arg for package in STRICT for arg in ("-p", package))],
     "plain": ["-p", "fake_marlin"],

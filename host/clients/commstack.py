@@ -60,6 +60,8 @@ class CommStackClient(Client):
     waits_for_greeting = False  # the MK20 greets nobody; the ESP starts asking at once
     check_command = staticmethod(commstack.check_command)
 
+    _core: CommStackCore
+
     def _open(self, options: ClientOptions) -> None:
         self._core = CommStackCore(options.timeout)
         self._connection = Connection()
@@ -68,18 +70,9 @@ class CommStackClient(Client):
     def stats(self) -> CommStackStats:
         return self._core.stats
 
-    # -- the shell's hooks ------------------------------------------------------------------
-    def _feed(self, data: bytes) -> None:
-        self._core.receive_data(data)
-        self.corrupt_frames = self._core.stats.corrupt_frames
+    def _heard(self) -> None:
         self._notify()  # an exchange may have ended
-        self._sender_wake.set()  # the MK20's pings want answers
-
-    def _poll(self, now: float) -> list[bytes]:
-        return self._core.poll(now)
-
-    def _next_deadline(self) -> float | None:
-        return self._core.next_deadline()
+        super()._heard()  # and the MK20's pings want answers
 
     async def _run(self, steps: Steps[T]) -> T:
         """Carry a sans-IO procedure's requests to the printer, one at a time."""

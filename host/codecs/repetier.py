@@ -16,18 +16,12 @@ RESYNC = b"\0" * 32  # before a resend after binary: the firmware waits for 31 N
 WIRE_NUMBER = 0xFFFF  # binary N is 16 bits, and the firmware compares numbers modulo 2^16
 
 check_command = marlin.check_command
+# The words both firmwares say are Marlin's events: `ok` (Repetier's carries the number the
+# line was queued under), `Resend:`, and the lines.
 Line = marlin.Line
 LineKind = marlin.LineKind
-
-
-@dataclass(frozen=True)
-class Ok:
-    line_number: int | None  # None: a bare `ok` (after M110, Resend or skip)
-
-
-@dataclass(frozen=True)
-class Resend:
-    line_number: int | None  # None if the number was unreadable
+Ok = marlin.Ok
+ResendRequest = marlin.ResendRequest
 
 
 @dataclass(frozen=True)
@@ -43,7 +37,7 @@ class Identity:
     text: str
 
 
-Event = Ok | Resend | Skip | Identity | Line
+Event = Ok | ResendRequest | Skip | Identity | Line
 
 _OK = re.compile(r"ok(?:\s+(\d+))?\s*")
 _SKIP = re.compile(r"skip\s+(\d+)\s*")
@@ -52,15 +46,13 @@ _PROTOCOL = re.compile(r"\bREPETIER_PROTOCOL:(\d+)")
 
 def parse_line(text: str) -> Event:
     if (match := _OK.fullmatch(text)) is not None:
-        return Ok(int(match[1]) if match[1] else None)
+        return Ok(line_number=int(match[1]) if match[1] else None)
     if (match := _SKIP.fullmatch(text)) is not None:
         return Skip(int(match[1]))
     if text.startswith("FIRMWARE_NAME:"):
         match = _PROTOCOL.search(text)
         return Identity(int(match[1]) if match else 0, text)
     event = marlin.parse_line(text)
-    if isinstance(event, marlin.ResendRequest):
-        return Resend(event.line)
     if isinstance(event, marlin.LineError):
         return Line(LineKind.ERROR, text)  # the Resend that follows says what to do
     if isinstance(event, marlin.Ok):

@@ -143,6 +143,15 @@ class CommStackCore:
         self.printer_pings = 0
         self._pings_since_handshake: int | None = None  # None: no Ping of ours answered yet
 
+    # The MK20 greets nobody, states no room, and prints no lines for the caller: what it says
+    # comes in the answers of the exchanges.
+    greeted = False
+    room: int | None = None
+
+    @property
+    def corrupt_frames(self) -> int:
+        return self.stats.corrupt_frames
+
     @property
     def printer_restarted(self) -> bool:
         """The MK20 has pinged since it last answered a Ping of ours: it has booted since.
@@ -176,7 +185,13 @@ class CommStackCore:
             return None
         return current.sent_at + self.timeout
 
-    def receive_data(self, data: bytes) -> None:
+    def next_event(self) -> None:
+        """Nothing for the caller: receive_data() has handled the bytes already."""
+        return None
+
+    def receive_data(self, data: bytes, now: float) -> None:
+        """The printer's bytes: its answers settle the exchange in flight, and its requests
+        (pings) are answered at the next poll(). The time they came plays no part."""
         self._frames.receive_data(data)
         while (frame := self._frames.next_frame()) is not None:
             decoded = decode_frame(frame)

@@ -54,7 +54,17 @@ from collections import deque
 from dataclasses import dataclass
 from enum import Enum, auto
 
-from fake_marlin.host.codecs.marlin import PROBE, LineKind, Ok, encode_line, encode_sync
+from fake_marlin.host.codecs.marlin import (
+    PROBE,
+    Line,
+    LineError,
+    LineKind,
+    LineParser,
+    Ok,
+    ResendRequest,
+    encode_line,
+    encode_sync,
+)
 from fake_marlin.host.cores.queue import CommandQueue, Ticket, is_long_command
 from fake_marlin.host.errors import PrinterHalted, PrinterNotResponding, PrinterReset
 
@@ -155,6 +165,16 @@ class MarlinCore(CommandQueue):
         self._last_line = -math.inf  # the last line of any kind
         self._last_busy: float | None = None
         self._keepalive_interval: float | None = None  # None until a busy line is seen
+        # Reading the printer (receive_data, next_event).
+        self._parser = LineParser()
+        self._received_at = -math.inf
+        self._response: list[str] = []  # data lines since the last ok
+        self.room: int | None = None  # ADVANCED_OK's P
+        self.greeted = False  # any line at all
+
+    @property
+    def corrupt_frames(self) -> int:
+        return self._parser.garbled
 
     # -- what the caller asks -----------------------------------------------------------
     @property
@@ -289,6 +309,35 @@ class MarlinCore(CommandQueue):
         return PROBE
 
     # -- what the printer says -----------------------------------------------------------
+    def receive_data(self, data: bytes, now: float) -> None:
+        self._parser.receive_data(data)
+        self._received_at = now
+
+    def next_event(self) -> Line | None:
+        """The printer's lines, each handled; those that are no command's response come out.
+        Data lines while a command of the caller's is in flight are its response, which its
+        ok closes (with what M105 says on the ok line itself)."""
+        now = self._received_at
+        while (event := self._parser.next_event()) is not None:
+            self.greeted = True
+            if isinstance(event, Ok):
+                response = (*self._response, event.text) if event.text else tuple(self._response)
+                self._response.clear()
+                if event.planner_free is not None:
+                    self.room = event.planner_free
+                self.on_ok(event, response, now)
+            elif isinstance(event, LineError):
+                self.on_line_error(event.last_line, now)
+            elif isinstance(event, ResendRequest):
+                self.on_resend(event.line, now)
+            else:
+                self.on_line(event.kind, event.text, now)
+                if event.kind in (LineKind.DATA, LineKind.ECHO) and self.expecting_response:
+                    self._response.append(event.text)
+                else:
+                    return event
+        return None
+
     def on_ok(self, ok: Ok, response: tuple[str, ...], now: float) -> None:
         self._heard(now)
         if self._report is not None:

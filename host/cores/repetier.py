@@ -54,8 +54,9 @@ from fake_marlin.host.codecs.repetier import (
     Identity,
     Line,
     LineKind,
+    LineParser,
     Ok,
-    Resend,
+    ResendRequest,
     Skip,
     encode_command,
 )
@@ -145,6 +146,16 @@ class RepetierCore(CommandQueue):
         self._unknown_asked: int | None = None  # a Resend for a line the host no longer has
         self._unknown_asks = 0  # how often in a row
         self._idle_resends = 0  # Resends in a row for the line after the last one there is
+        # Reading the printer (receive_data, next_event).
+        self._parser = LineParser()
+        self._received_at = -math.inf
+        self._answering: Ticket | None = None  # whose output is arriving: the last one queued
+        self.greeted = False  # any line at all
+        self.room: int | None = None  # Repetier does not say
+
+    @property
+    def corrupt_frames(self) -> int:
+        return self._parser.garbled
 
     # -- what the caller asks -----------------------------------------------------------
     def request_drained(self) -> None:
@@ -270,6 +281,28 @@ class RepetierCore(CommandQueue):
         self._resync = True
 
     # -- what the printer says -----------------------------------------------------------
+    def receive_data(self, data: bytes, now: float) -> None:
+        self._parser.receive_data(data)
+        self._received_at = now
+
+    def next_event(self) -> Line | None:
+        """The printer's lines, each handled; those that are no command's output come out.
+        Repetier acknowledges a command when it queues it, so what it prints comes after the
+        ok: the output of the command queued last."""
+        while (event := self._parser.next_event()) is not None:
+            self.greeted = True
+            self.on_event(event, self._received_at)
+            if isinstance(event, Identity):
+                event = Line(LineKind.DATA, event.text)
+            if not isinstance(event, Line):
+                continue
+            ticket = self._answering
+            if event.kind in (LineKind.DATA, LineKind.REPORT) and ticket is not None:
+                ticket.response += (event.text,)
+            else:
+                return event
+        return None
+
     def on_event(self, event: Event, now: float) -> None:
         if isinstance(event, Line) and event.kind is LineKind.START:
             self._on_start(event.text)
@@ -279,8 +312,8 @@ class RepetierCore(CommandQueue):
             self._last_heard = now
         if isinstance(event, Ok):
             self._on_ok(event.line_number, now)
-        elif isinstance(event, Resend):
-            self._on_resend(event.line_number, now)
+        elif isinstance(event, ResendRequest):
+            self._on_resend(event.line, now)
         elif isinstance(event, Skip):
             head = self._lines[0] if self._lines else None
             if head is not None and head.transmissions and self._wire(head) == event.line_number:
@@ -446,6 +479,7 @@ class RepetierCore(CommandQueue):
             line.ticket.done, line.ticket.confirmed = True, own_ok
             self.stats.unconfirmed += not own_ok
             self._completed.append(line.ticket)
+            self._answering = line.ticket
         if self.phase is Phase.IDENTIFY and not self._lines and self._identify_deadline is None:
             self._identify_deadline = now + self.timeout
 

@@ -19,14 +19,29 @@ make a command run twice; these rules only decide how fast a loss is repaired:
   least three `received_timeout`), and given up on only after `long_timeout` of silence.
 - A packet known to have arrived whose `o` never comes (lost on the way back) counts as done
   after `received_timeout` of silence.
+
+The core reads the printer's frames and lines itself (host.codecs.ultimaker): an `o`'s response
+is the data lines before it; `q` and `LOG:` lines are the printer's greeting; an `Error:` that
+says the firmware halted ends the session once the line has been shown.
 """
 
 import math
 from dataclasses import dataclass, field
 from enum import Enum, auto
 
+from fake_marlin.host.codecs import marlin
+from fake_marlin.host.codecs.ultimaker import (
+    Ack,
+    CorruptFrame,
+    FrameParser,
+    Line,
+    LineKind,
+    Reject,
+    RoomInfo,
+    encode_command,
+)
 from fake_marlin.host.cores.queue import CommandQueue, Ticket, is_long_command
-from fake_marlin.host.errors import PrinterNotResponding, PrinterReset
+from fake_marlin.host.errors import PrinterHalted, PrinterNotResponding, PrinterReset
 from fake_marlin.wire.ultimaker import next_seq, seq_distance
 
 PROBE_MOVES = 3  # a full planner is probed after this many moves' time (or received_timeouts)
@@ -89,6 +104,14 @@ class UltimakerCore(CommandQueue):
         self._printer_room: int | None = None
         self._last_ack_at: float | None = None
         self._ack_interval = 0.0  # between the last two `o` frames: how long a move takes
+        # Reading the printer (receive_data, next_event).
+        self._parser = FrameParser()
+        self._received_at = -math.inf
+        self._response: list[str] = []  # data lines since the last `o`
+        self._halted: str | None = None  # why the session ends, once the line is shown
+        self.room: int | None = None
+        self.greeted = False
+        self.corrupt_frames = 0
 
     # -- what the caller asks -----------------------------------------------------------
     @property
@@ -143,8 +166,12 @@ class UltimakerCore(CommandQueue):
             self._printer_room = room
 
     # -- time and transmission -----------------------------------------------------------
-    def poll(self, now: float) -> list[Transmit]:
-        """Handle expired timers, then return what to put on the wire now, in order."""
+    def poll(self, now: float) -> list[bytes]:
+        """Handle expired timers, then return the packets to write now, in order."""
+        return [encode_command(t.seq, t.text) for t in self.transmits(now)]
+
+    def transmits(self, now: float) -> list[Transmit]:
+        """poll(), before the packets are encoded."""
         self._expire(now)
         if now < self._hold_until:
             return []
@@ -188,6 +215,40 @@ class UltimakerCore(CommandQueue):
             packet.needs_transmit = True
 
     # -- what the printer says -----------------------------------------------------------
+    def receive_data(self, data: bytes, now: float) -> None:
+        self._parser.receive_data(data)
+        self._received_at = now
+
+    def next_event(self) -> Line | None:
+        if self._halted is not None:
+            raise PrinterHalted(self._halted)
+        now = self._received_at
+        while (event := self._parser.next_event()) is not None:
+            if isinstance(event, Ack):
+                self.room = event.room
+                self._completed += self.on_ack(event.seq, event.room, tuple(self._response), now)
+                self._response.clear()
+            elif isinstance(event, Reject):
+                self.room = event.room
+                self.on_reject(event.seq, event.room, now)
+            elif isinstance(event, RoomInfo):
+                self.room = event.room
+                self.heard(now, event.room)
+                self.greeted = True
+            elif isinstance(event, CorruptFrame):
+                self.corrupt_frames += 1
+            else:
+                self.heard(now)
+                if event.kind is LineKind.RESPONSE:
+                    self._response.append(event.text)
+                    continue
+                if event.kind is LineKind.LOG:
+                    self.greeted = True
+                elif event.kind is LineKind.ERROR and marlin.is_halt_message(event.text):
+                    self._halted = f"the printer halted: Error:{event.text}"
+                return event
+        return None
+
     def on_ack(self, seq: int, room: int, response: tuple[str, ...], now: float) -> list[Ticket]:
         """An `o` frame; returns the tickets it completes, oldest first."""
         self.heard(now, room)
