@@ -20,6 +20,7 @@ from collections.abc import Callable
 
 from fake_marlin.emulator.printer import gcode
 from fake_marlin.emulator.protocols import commstack as cs
+from fake_marlin.emulator.protocols.base import CommandDone, CommandReceived
 from fake_marlin.emulator.protocols import marlin, stk500
 from fake_marlin.emulator.protocols import repetier as rep
 from fake_marlin.emulator.protocols import ultimaker as um
@@ -73,6 +74,11 @@ def printable(data: bytes, limit: int) -> str:
     return text[:limit].strip()
 
 
+def resend_request(number: int) -> host_repetier.ResendRequest:
+    """What the host reads of Repetier's `Resend:<number>` line."""
+    return host_repetier.ResendRequest(number, f"Resend:{number}")
+
+
 def host_events(parser, data: bytes) -> list:
     parser.receive_data(data)
     events = []
@@ -93,7 +99,7 @@ def marlin_receiver(data: bytes) -> None:
 
     def release() -> None:
         number = queued.pop(0)
-        said = host_events(host, printer.send(marlin.Ok(line_number=number)))
+        said = host_events(host, printer.send(CommandDone(number)))
         if advanced:
             expected = host_marlin.Ok("", number, 15, printer.queue_free)
         else:
@@ -108,13 +114,13 @@ def marlin_receiver(data: bytes) -> None:
                     release()
                     continue
                 return
-            if isinstance(event, marlin.LineReceived):
+            if isinstance(event, CommandReceived):
                 assert event.text and event.text == event.text.strip(), event
                 assert "*" not in event.text and not {"\r", "\n"} & set(event.text), event
                 assert len(event.text) < marlin.MAX_CMD_SIZE, event
-                assert event.line_number in (None, printer.last_n), event
+                assert event.number in (None, printer.last_n), event
                 assert printer.data_to_send() == b""
-                queued.append(event.line_number)
+                queued.append(event.number)
             elif isinstance(event, marlin.LineRejected):
                 said = host_events(host, printer.data_to_send())
                 assert len(said) == 3, said
@@ -155,17 +161,17 @@ def ultimaker_receiver(data: bytes) -> None:
 
     def release() -> None:
         seq = queued.pop(0)
-        said = host_events(host, printer.send(um.CommandDone(seq, room)))
+        said = host_events(host, printer.send(CommandDone(seq, room)))
         assert said == [host_um.Ack(seq, room)], said
 
     for piece in chunks:
         printer.receive_data(piece)
         while (event := printer.next_event()) is not None:
-            if isinstance(event, um.CommandReceived):
-                assert event.seq == wire_um.next_seq(printer.expected_seq, -1), event
+            if isinstance(event, CommandReceived):
+                assert event.number == wire_um.next_seq(printer.expected_seq, -1), event
                 assert wire_um.payload_error(event.text.encode("ascii")) is None, event
                 assert printer.data_to_send() == b""
-                queued.append(event.seq)
+                queued.append(event.number)
                 if len(queued) > keep:
                     release()
             else:
@@ -191,7 +197,7 @@ def repetier_receiver(data: bytes) -> None:
     def said() -> list:
         events = host_events(host, printer.data_to_send())
         for event in events:
-            answer = (host_repetier.Ok, host_repetier.Skip, host_repetier.Resend)
+            answer = (host_repetier.Ok, host_repetier.Skip, host_repetier.ResendRequest)
             is_error = isinstance(event, host_repetier.Line) and event.kind.name == "ERROR"
             assert isinstance(event, answer) or is_error, events
         return events
@@ -202,16 +208,16 @@ def repetier_receiver(data: bytes) -> None:
             event = printer.next_event()
             if event is None:
                 if printer.has_input and not printer.reading:  # the oldest command ran
-                    printer.send(rep.Done())
+                    printer.send(CommandDone())
                     continue
                 break
-            if isinstance(event, rep.CommandReceived):
-                assert said()[-1:] == [host_repetier.Ok(printer.act_line)], event
-                if event.line_number is not None:
-                    assert event.line_number == printer.last_line, event
+            if isinstance(event, CommandReceived):
+                assert said()[-1:] == [host_repetier.Ok(line_number=printer.act_line)], event
+                if event.number is not None:
+                    assert event.number == printer.last_line, event
             elif isinstance(event, rep.CommandRejected):
                 events = said()
-                resend = [host_repetier.Resend(event.resend), host_repetier.Ok(None)]
+                resend = [resend_request(event.resend), host_repetier.Ok()]
                 assert events[-2:] == resend, events
             else:
                 assert isinstance(event, rep.EmergencyStop), event
@@ -220,10 +226,10 @@ def repetier_receiver(data: bytes) -> None:
         assert len(printer._command) < rep.MAX_CMD_SIZE
         if choice >> (number % 6 + 2) & 1 and printer.expects_more:
             printer.stalled()  # 200 ms without a byte
-            assert said()[-2:] == [host_repetier.Resend(printer.last_line + 1 & 0xFFFFFFFF),
-                                   host_repetier.Ok(None)]
+            assert said()[-2:] == [resend_request(printer.last_line + 1 & 0xFFFFFFFF),
+                                   host_repetier.Ok()]
         if not printer.reading and not printer.has_input:
-            printer.send(rep.Done())
+            printer.send(CommandDone())
 
 
 def commstack_receiver(data: bytes) -> None:
@@ -366,7 +372,7 @@ def host_marlin_parser(data: bytes) -> None:
         events.append(event)
     events = [event for event in events if not isinstance(event, marlin.EmergencyCommand)]
     text = remove_paren_comments(command).strip()  # ( ) comments are no part of the command
-    assert events == ([marlin.LineReceived(text, number)] if text else []), (line, events)
+    assert events == ([CommandReceived(text, number)] if text else []), (line, events)
 
 
 def host_ultimaker_parser(data: bytes) -> None:
@@ -387,7 +393,7 @@ def host_ultimaker_parser(data: bytes) -> None:
     printer = um.UltimakerProtocol()
     printer.expected_seq = seq
     printer.receive_data(packet)
-    assert printer.next_event() == um.CommandReceived(seq, command), packet
+    assert printer.next_event() == CommandReceived(command, seq), packet
 
 
 def host_repetier_parser(data: bytes) -> None:
@@ -407,8 +413,8 @@ def host_repetier_parser(data: bytes) -> None:
     printer.last_line = (number - 1) & 0xFFFFFFFF
     printer.receive_data(wire)
     event = printer.next_event()
-    if isinstance(event, rep.CommandReceived):
-        assert event.binary == binary and event.line_number == number & 0xFFFF, (wire, event)
+    if isinstance(event, CommandReceived):
+        assert printer.last_was_binary == binary and event.number == number & 0xFFFF, (wire, event)
         assert canonical(event.text) == canonical(command), (wire, event, command)
     else:
         # The firmware's own reading: M112 anywhere stops it, a line without G, M or T is a
@@ -465,7 +471,7 @@ def repetier_binary(data: bytes) -> None:
     printer = rep.RepetierProtocol()  # the emulator's reader, given a command that checks out
     printer.receive_data(frame)
     event = printer.next_event()
-    assert event is None or isinstance(event, (rep.CommandReceived, rep.CommandRejected,
+    assert event is None or isinstance(event, (CommandReceived, rep.CommandRejected,
                                                rep.EmergencyStop)), event
     try:
         encoded = wire_rep.encode(command)

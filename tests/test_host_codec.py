@@ -4,7 +4,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from fake_marlin.emulator.protocols.ultimaker import CommandReceived, UltimakerProtocol
+from fake_marlin.emulator.protocols.base import CommandReceived
+from fake_marlin.emulator.protocols.ultimaker import UltimakerProtocol
 from fake_marlin.host.codecs.lines import MAX_LINE
 from fake_marlin.host.codecs.ultimaker import (
     Ack,
@@ -37,7 +38,7 @@ def test_every_sendable_command_reaches_the_printer_intact(command, seq):
     printer = UltimakerProtocol()
     printer.expected_seq = seq
     printer.receive_data(encode_command(seq, command))
-    assert printer.next_event() == CommandReceived(seq, command)
+    assert printer.next_event() == CommandReceived(command, seq)
 
 
 @given(st.sampled_from("orq"), st.integers(0, 254), st.integers(0, 15))

@@ -7,9 +7,9 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
+from fake_marlin.emulator.protocols.base import CommandReceived
 from fake_marlin.emulator.protocols.marlin import (
     EmergencyCommand,
-    LineReceived,
     LineRejected,
     MarlinProtocol,
 )
@@ -184,7 +184,7 @@ def test_numbered_lines_reach_the_printer_as_sent(commands, first):
         event = printer.next_event()
         if isinstance(event, EmergencyCommand):  # M108/M112/M410 are also seen at once
             event = printer.next_event()
-        assert event == LineReceived(command, number)
+        assert event == CommandReceived(command, number)
     assert printer.data_to_send() == b""
 
 
@@ -213,7 +213,7 @@ def test_no_single_bit_flip_makes_the_probe_move_the_counter(counter):
             printer.last_n = counter
             printer.receive_data(bytes(damaged) + b"\n")
             while (event := printer.next_event()) is not None:
-                assert not (isinstance(event, LineReceived) and event.line_number is not None)
+                assert not (isinstance(event, CommandReceived) and event.number is not None)
             assert printer.last_n == counter, bytes(damaged)
 
 
@@ -240,13 +240,13 @@ def test_the_probe_ends_a_partial_line_instead_of_joining_it():
     printer.last_n = 86
     line = encode_line(87, "G1 X36 Y2 F6000").rstrip(b"\n")
     printer.receive_data(line + PROBE)
-    assert printer.next_event() == LineReceived("G1 X36 Y2 F6000", 87)
+    assert printer.next_event() == CommandReceived("G1 X36 Y2 F6000", 87)
     assert isinstance(printer.next_event(), LineRejected)
     assert printer.last_n == 87
     joined = MarlinProtocol()
     joined.last_n = 86
     joined.receive_data(line + PROBE[1:])
     # With both line feeds lost, the probe's own checksum is the joined line's last: refused,
-    # the counter unchanged (without it: LineReceived("G1 X36 Y2 F6000", 0), counter 0).
+    # the counter unchanged (without it: CommandReceived("G1 X36 Y2 F6000", 0), counter 0).
     assert isinstance(joined.next_event(), LineRejected)
     assert joined.last_n == 86

@@ -9,13 +9,11 @@ from fake_marlin.emulator.protocols.marlin import (
     MAX_CMD_SIZE,
     EmergencyCommand,
     LineError,
-    LineReceived,
     LineRejected,
     MarlinProtocol,
-    Ok,
-    Output,
     xor_checksum,
 )
+from fake_marlin.emulator.protocols.base import CommandDone, CommandReceived, Output
 
 
 def feed(protocol: MarlinProtocol, data: bytes, release: bool = True) -> list:
@@ -24,8 +22,8 @@ def feed(protocol: MarlinProtocol, data: bytes, release: bool = True) -> list:
     events = []
     while (event := protocol.next_event()) is not None:
         events.append(event)
-        if release and isinstance(event, LineReceived):
-            protocol.send(Ok())
+        if release and isinstance(event, CommandReceived):
+            protocol.send(CommandDone())
     return events
 
 
@@ -45,12 +43,12 @@ def numbered(n: int, command: str, space: str = " ") -> bytes:
 def test_reference_vectors_in_sequence(wire, text, number):
     protocol = MarlinProtocol()
     protocol.last_n = number - 1
-    assert feed(protocol, wire) == [LineReceived(text, number)]
+    assert feed(protocol, wire) == [CommandReceived(text, number)]
 
 
 def test_curas_form_without_a_space_after_the_number():
     protocol = MarlinProtocol()
-    assert feed(protocol, b"N1G28*50\n") == [LineReceived("G28", 1)]
+    assert feed(protocol, b"N1G28*50\n") == [CommandReceived("G28", 1)]
 
 
 @pytest.mark.parametrize(
@@ -71,7 +69,7 @@ def test_an_error_discards_the_rest_of_what_arrived():
     protocol = MarlinProtocol()
     events = feed(protocol, b"N1 G28*19\n" + numbered(1, "G28") + numbered(2, "M105"))
     assert events == [LineRejected(LineError.CHECKSUM, 1)]
-    assert feed(protocol, numbered(1, "G28")) == [LineReceived("G28", 1)]
+    assert feed(protocol, numbered(1, "G28")) == [CommandReceived("G28", 1)]
 
 
 @pytest.mark.parametrize("repeat", [4, 5])
@@ -86,13 +84,13 @@ def test_a_repeat_of_the_last_line_or_the_one_before_is_dropped_silently(repeat)
 def test_m110_sets_the_line_number_from_its_own_n_even_negative():
     protocol = MarlinProtocol()
     protocol.last_n = 41
-    assert feed(protocol, numbered(-1, "M110 N-1")) == [LineReceived("M110 N-1", -1)]
-    assert feed(protocol, numbered(0, "G28")) == [LineReceived("G28", 0)]
+    assert feed(protocol, numbered(-1, "M110 N-1")) == [CommandReceived("M110 N-1", -1)]
+    assert feed(protocol, numbered(0, "G28")) == [CommandReceived("G28", 0)]
 
 
 def test_bare_lines_are_accepted_and_do_not_count():
     protocol = MarlinProtocol()
-    assert feed(protocol, b"M105\nG28 X Y\n") == [LineReceived("M105", None), LineReceived("G28 X Y", None)]
+    assert feed(protocol, b"M105\nG28 X Y\n") == [CommandReceived("M105", None), CommandReceived("G28 X Y", None)]
     assert protocol.last_n == 0
 
 
@@ -111,14 +109,14 @@ def test_comments_escapes_and_backspace_as_the_firmware_strips_them():
 def test_the_checksum_covers_a_paren_comment_as_the_host_sent_it():
     protocol = MarlinProtocol()
     wire = numbered(1, "G1 Z0.3 F600 (first layer)")
-    assert feed(protocol, wire) == [LineReceived("G1 Z0.3 F600", 1)]
+    assert feed(protocol, wire) == [CommandReceived("G1 Z0.3 F600", 1)]
     assert protocol.data_to_send() == b""
 
 
 def test_a_nul_ends_the_line_as_in_a_c_string():
     protocol = MarlinProtocol()
     assert feed(protocol, b"\x00\x00N1 G28*18\n") == []  # read as an empty line
-    assert feed(protocol, b"M105\x00junk\n") == [LineReceived("M105", None)]
+    assert feed(protocol, b"M105\x00junk\n") == [CommandReceived("M105", None)]
 
 
 def test_an_overlong_line_is_cut_at_max_cmd_size():
@@ -131,8 +129,8 @@ def test_reading_stops_while_the_command_queue_is_full():
     protocol = MarlinProtocol(queue_size=2)
     events = feed(protocol, b"G1 X1\nG1 X2\nG1 X3\n", release=False)
     assert [e.text for e in events] == ["G1 X1", "G1 X2"]
-    protocol.send(Ok())
-    assert feed(protocol, b"", release=False) == [LineReceived("G1 X3", None)]
+    protocol.send(CommandDone())
+    assert feed(protocol, b"", release=False) == [CommandReceived("G1 X3", None)]
 
 
 def test_the_emergency_parser_acts_even_with_a_full_queue():
@@ -144,13 +142,13 @@ def test_the_emergency_parser_acts_even_with_a_full_queue():
 
 def test_ok_forms():
     plain = MarlinProtocol()
-    assert plain.send(Ok(line_number=3)) == b"ok\n"
-    assert plain.send(Ok(suffix="T:21.00 /0.00")) == b"ok T:21.00 /0.00\n"
+    assert plain.send(CommandDone(3)) == b"ok\n"
+    assert plain.send(CommandDone(ok_suffix="T:21.00 /0.00")) == b"ok T:21.00 /0.00\n"
     advanced = MarlinProtocol(advanced_ok=True)
     feed(advanced, numbered(1, "G1 X1"), release=False)
-    assert advanced.send(Ok(line_number=1, planner_free=14)) == b"ok N1 P14 B4\n"
+    assert advanced.send(CommandDone(1, room=14)) == b"ok N1 P14 B4\n"
     feed(advanced, b"G1 X2\n", release=False)
-    assert advanced.send(Ok(planner_free=13)) == b"ok P13 B4\n"
+    assert advanced.send(CommandDone(room=13)) == b"ok P13 B4\n"
     assert advanced.send(Output("echo:x")) == b"echo:x\n"
 
 
@@ -158,7 +156,7 @@ def test_while_saving_to_sd_only_numbered_lines_and_m29_are_accepted():
     protocol = MarlinProtocol()
     protocol.saving_to_sd = True
     assert feed(protocol, b"G1 X1\n") == [LineRejected(LineError.NO_CHECKSUM, 1)]
-    assert feed(protocol, numbered(1, "G1 X1") + b"M29\n") == [LineReceived("G1 X1", 1), LineReceived("M29", None)]
+    assert feed(protocol, numbered(1, "G1 X1") + b"M29\n") == [CommandReceived("G1 X1", 1), CommandReceived("M29", None)]
 
 
 # A command starts with a letter: after `N12` with no space a leading digit would join the number,
@@ -178,7 +176,7 @@ def test_numbered_lines_round_trip(texts, spaced):
     protocol = MarlinProtocol()
     wire = b"".join(numbered(n + 1, text, " " if spaced else "") for n, text in enumerate(texts))
     events = feed(protocol, wire)
-    assert [(e.text, e.line_number) for e in events] == [
+    assert [(e.text, e.number) for e in events] == [
         (text.strip(), n + 1) for n, text in enumerate(texts)
     ]
 
@@ -189,7 +187,7 @@ def test_arbitrary_bytes_never_crash_and_every_reply_is_ascii(chunks):
     protocol = MarlinProtocol()
     for chunk in chunks:
         for event in feed(protocol, chunk):
-            assert isinstance(event, (LineReceived, LineRejected, EmergencyCommand))
+            assert isinstance(event, (CommandReceived, LineRejected, EmergencyCommand))
     protocol.data_to_send().decode("ascii")
 
 

@@ -2,7 +2,8 @@
 
 import pytest
 
-from fake_marlin.emulator.protocols.ultimaker import CommandReceived, RoomChanged, UltimakerProtocol
+from fake_marlin.emulator.protocols.base import CommandReceived
+from fake_marlin.emulator.protocols.ultimaker import RoomChanged, UltimakerProtocol
 from fake_marlin.host.codecs.ultimaker import Ack, RoomInfo, parse_line
 from fake_marlin.wire.checksums import crc8_smbus, crc16_ccitt_false
 from fake_marlin.wire.ultimaker import encode_packet, frame_body
@@ -25,7 +26,7 @@ def test_packet_vectors(seq, payload, wire_hex):
     printer = UltimakerProtocol()
     printer.expected_seq = seq
     printer.receive_data(bytes.fromhex(wire_hex))
-    assert printer.next_event() == CommandReceived(seq, payload.decode())
+    assert printer.next_event() == CommandReceived(payload.decode(), seq)
     assert printer.data_to_send() == b""
 
 

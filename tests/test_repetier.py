@@ -11,12 +11,11 @@ from hypothesis import strategies as st
 from fake_marlin.emulator.faults.layer import FaultConfig, parse_fault
 from fake_marlin.emulator.journal.verify import verify
 from fake_marlin.emulator.protocols.repetier import (
-    CommandReceived,
     CommandRejected,
-    Done,
     EmergencyStop,
     RepetierProtocol,
 )
+from fake_marlin.emulator.protocols.base import CommandDone, CommandReceived
 from fake_marlin.emulator.server.lifecycle import ServerConfig
 from fake_marlin.host.codecs import repetier as host_codec
 from fake_marlin.host.connect import connect
@@ -53,7 +52,7 @@ def received(protocol: RepetierProtocol, data: bytes) -> tuple[list, str]:
     while (event := protocol.next_event()) is not None:
         events.append(event)
         if isinstance(event, CommandReceived):
-            said += protocol.send(Done())
+            said += protocol.send(CommandDone())
     return events, (said + protocol.data_to_send()).decode()
 
 
@@ -148,9 +147,13 @@ def test_garbage_never_crashes_or_hangs_the_receiver(data):
 # -- the firmware's receiver ----------------------------------------------------------------
 def test_binary_and_ascii_mix_and_each_is_acknowledged_with_its_number():
     protocol = RepetierProtocol()
-    events, said = received(protocol, binary("M110", 0) + b"\0\0" + binary("G28", 1) + ascii_line(2, "G1 X5"))
-    assert [(e.text, e.line_number, e.binary) for e in events] == [("G28", 1, True), ("G1 X5", 2, False)]
-    assert said == "ok\r\nok 1\r\nok 2\r\n"
+    protocol.receive_data(binary("M110", 0) + b"\0\0" + binary("G28", 1) + ascii_line(2, "G1 X5"))
+    came, said = [], b""
+    while (event := protocol.next_event()) is not None:
+        came.append((event.text, event.number, protocol.last_was_binary))
+        said += protocol.send(CommandDone())
+    assert came == [("G28", 1, True), ("G1 X5", 2, False)]
+    assert (said + protocol.data_to_send()).decode() == "ok\r\nok 1\r\nok 2\r\n"
 
 
 def test_a_damaged_binary_command_needs_31_nuls_before_the_next_is_read():
@@ -204,7 +207,7 @@ def test_only_a_line_at_or_behind_the_last_is_a_repeat(last, n, said):
     assert received(protocol, m110(last)) == ([], "ok\r\n")
     events, reply = received(protocol, binary("G1 X1", n))
     if said.startswith("ok"):
-        assert [e.line_number for e in events] == [n] and reply == said + "\r\n"
+        assert [e.number for e in events] == [n] and reply == said + "\r\n"
     elif said.startswith("skip"):
         assert events == [] and reply == said + "\r\nok\r\n"
     else:

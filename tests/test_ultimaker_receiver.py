@@ -4,9 +4,8 @@ import pytest
 from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
+from fake_marlin.emulator.protocols.base import CommandDone, CommandReceived
 from fake_marlin.emulator.protocols.ultimaker import (
-    CommandDone,
-    CommandReceived,
     OutOfBand,
     OutOfBandKind,
     PacketRejected,
@@ -28,7 +27,7 @@ def feed(protocol: UltimakerProtocol, data: bytes) -> list:
 def test_commands_come_out_in_order_with_their_sequence_numbers():
     protocol = UltimakerProtocol()
     events = feed(protocol, encode_packet(0, b"G28") + encode_packet(1, b"G1 X10 F3000"))
-    assert events == [CommandReceived(0, "G28"), CommandReceived(1, "G1 X10 F3000")]
+    assert events == [CommandReceived("G28", 0), CommandReceived("G1 X10 F3000", 1)]
     assert protocol.expected_seq == 2
 
 
@@ -86,7 +85,7 @@ def test_a_full_command_queue_rejects_without_advancing():
     assert events[2].reason is RejectReason.QUEUE_FULL
     assert b"(buffer full), packet with sequence number: 2" in protocol.data_to_send()
     protocol.send(CommandDone(0, room=15))
-    assert feed(protocol, encode_packet(2, b"G1 X3")) == [CommandReceived(2, "G1 X3")]
+    assert feed(protocol, encode_packet(2, b"G1 X3")) == [CommandReceived("G1 X3", 2)]
 
 
 def test_an_error_flushes_the_rest_of_the_receive_buffer():
@@ -95,12 +94,12 @@ def test_an_error_flushes_the_rest_of_the_receive_buffer():
     events = feed(protocol, corrupt + encode_packet(0, b"G28") + encode_packet(1, b"M105"))
     assert [type(e) for e in events] == [PacketRejected]
     # What arrives after the flush is read normally.
-    assert feed(protocol, encode_packet(0, b"G28")) == [CommandReceived(0, "G28")]
+    assert feed(protocol, encode_packet(0, b"G28")) == [CommandReceived("G28", 0)]
 
 
 def test_a_retransmitted_packet_is_never_handed_out_twice():
     protocol = UltimakerProtocol()
-    assert feed(protocol, encode_packet(0, b"G1 X5")) == [CommandReceived(0, "G1 X5")]
+    assert feed(protocol, encode_packet(0, b"G1 X5")) == [CommandReceived("G1 X5", 0)]
     events = feed(protocol, encode_packet(0, b"G1 X5"))
     assert [e.reason for e in events] == [RejectReason.UNEXPECTED_SEQUENCE]
     assert protocol.data_to_send().endswith(f"\n{frame_body('r', 1, 15)}\n".encode())
@@ -109,7 +108,7 @@ def test_a_retransmitted_packet_is_never_handed_out_twice():
 def test_ff_where_a_field_is_expected_restarts_framing():
     protocol = UltimakerProtocol()
     truncated = encode_packet(0, b"G1 X100")[:6]  # header, seq, length, two payload bytes
-    assert feed(protocol, truncated + encode_packet(0, b"M105")) == [CommandReceived(0, "M105")]
+    assert feed(protocol, truncated + encode_packet(0, b"M105")) == [CommandReceived("M105", 0)]
 
 
 @pytest.mark.parametrize("extra", [1, 2, 5])
@@ -117,7 +116,7 @@ def test_header_bytes_beyond_two_are_ignored(extra):
     """readCommand syncs on any run of 0xFF: a packet cut to its first byte (or noise ending in
     0xFF) in front of the resend must not make the resend's header look like noise."""
     protocol = UltimakerProtocol()
-    assert feed(protocol, b"\xff" * extra + encode_packet(0, b"M105")) == [CommandReceived(0, "M105")]
+    assert feed(protocol, b"\xff" * extra + encode_packet(0, b"M105")) == [CommandReceived("M105", 0)]
 
 
 def test_ff_inside_the_crc_is_data_not_a_header():
@@ -129,12 +128,12 @@ def test_ff_inside_the_crc_is_data_not_a_header():
     )
     protocol = UltimakerProtocol()
     protocol.expected_seq = seq
-    assert feed(protocol, encode_packet(seq, payload)) == [CommandReceived(seq, payload.decode())]
+    assert feed(protocol, encode_packet(seq, payload)) == [CommandReceived(payload.decode(), seq)]
 
 
 def test_sequence_numbers_wrap_after_254():
     protocol = UltimakerProtocol(queue_size=1000)
-    seqs = [event.seq for n in range(300) for event in feed(protocol, encode_packet(n % 255, b"M105"))]
+    seqs = [event.number for n in range(300) for event in feed(protocol, encode_packet(n % 255, b"M105"))]
     assert seqs == [n % 255 for n in range(300)]
 
 
@@ -164,7 +163,7 @@ def test_arbitrary_bytes_never_crash_and_output_stays_framed(chunks):
         for event in feed(protocol, chunk):
             assert isinstance(event, (CommandReceived, PacketRejected))
             if isinstance(event, CommandReceived):
-                protocol.send(CommandDone(event.seq, room=15))
+                protocol.send(CommandDone(event.number, room=15))
     for line in protocol.data_to_send().split(b"\n"):
         assert line == b"" or line.startswith(b"ProtoError:") or line[:1] in b"or"
 
@@ -177,7 +176,7 @@ def test_a_valid_packet_after_garbage_is_accepted_by_the_time_it_is_resent(garba
     feed(protocol, garbage)
     seq = protocol.expected_seq
     received = feed(protocol, encode_packet(seq, payload)) + feed(protocol, encode_packet(seq, payload))
-    assert CommandReceived(seq, payload.decode()) in received
+    assert CommandReceived(payload.decode(), seq) in received
 
 
 class ByteByByte(UltimakerProtocol):
@@ -221,5 +220,5 @@ def test_reading_a_whole_packet_at_once_is_reading_it_byte_by_byte(packets, queu
         for protocol in (fast, slow):
             for event in received if finish else ():
                 if isinstance(event, CommandReceived):
-                    protocol.send(CommandDone(event.seq, room=15))
+                    protocol.send(CommandDone(event.number, room=15))
         assert fast.data_to_send() == slow.data_to_send()

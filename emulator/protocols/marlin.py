@@ -12,11 +12,13 @@ import re
 from dataclasses import dataclass
 from enum import Enum, auto
 
+from fake_marlin.emulator.protocols.base import CommandDone, CommandReceived, Output
 from fake_marlin.wire.checksums import xor8
 from fake_marlin.wire.gcode import remove_paren_comments
 
 MAX_CMD_SIZE = 96
 BUFSIZE = 4
+PLANNER_ROOM = 15  # ADVANCED_OK's P where the session states none: an empty planner's room
 
 
 class InputState(Enum):
@@ -36,13 +38,7 @@ class LineError(Enum):
     NO_CHECKSUM = "No Checksum with line number, Last Line: "
 
 
-# Events out.
-@dataclass(frozen=True, slots=True)  # slots: one is made per line, a quarter faster
-class LineReceived:
-    text: str  # the command without line number and checksum
-    line_number: int | None
-
-
+# Events out (and CommandReceived, protocols.base).
 @dataclass(frozen=True)
 class LineRejected:
     error: LineError
@@ -54,22 +50,10 @@ class EmergencyCommand:
     text: str  # "M108", "M112", "M410" or "M876 S<n>"
 
 
-Event = LineReceived | LineRejected | EmergencyCommand
+Event = CommandReceived | LineRejected | EmergencyCommand
 
 
-# Events in.
-@dataclass(frozen=True)
-class Ok:
-    """A queued command finished: release its queue slot and say `ok`."""
-
-    line_number: int | None = None
-    suffix: str = ""  # text on the ok line itself (M105's temperatures)
-    planner_free: int = 15
-
-
-@dataclass(frozen=True)
-class Output:
-    text: str
+# Events in: CommandDone and Output (protocols.base).
 
 
 _LEADING_INT = re.compile(r"\s*([-+]?\d+)")
@@ -112,7 +96,7 @@ class MarlinProtocol:
         self._output = bytearray()
         self._emergency_line = bytearray()
         self._emergencies: list[EmergencyCommand] = []
-        self._read: LineReceived | None = None  # a line receive_data() read whole
+        self._read: CommandReceived | None = None  # a line receive_data() read whole
 
     # -- receiving ---------------------------------------------------------------------
     def receive_data(self, data: bytes) -> None:
@@ -186,7 +170,7 @@ class MarlinProtocol:
         finally:
             del data[:position]
 
-    def _whole_plain_line(self, data: bytes) -> LineReceived | None:
+    def _whole_plain_line(self, data: bytes) -> CommandReceived | None:
         """The usual read, one whole _PLAIN_LINE without an M, numbered last_N + 1 with a
         correct checksum, into an empty line buffer with room in the queue: read in one match
         as _line_done() reads it; None for anything else, which next_event() reads by the rules.
@@ -206,7 +190,7 @@ class MarlinProtocol:
             return None
         self.last_n = line_number
         self._queued += 1
-        return LineReceived(text, line_number)
+        return CommandReceived(text, line_number)
 
     def _stream_chars(self, data: bytearray, start: int, stop: int) -> None:
         """process_stream_char() over data[start:stop], a stretch without line ends: plain text
@@ -254,7 +238,7 @@ class MarlinProtocol:
         if len(self._line) >= MAX_CMD_SIZE - 1:
             self._state = InputState.EOL_COMMENT
 
-    def _line_done(self) -> LineReceived | LineRejected | None:
+    def _line_done(self) -> CommandReceived | LineRejected | None:
         # The firmware's line buffer is a C string: a NUL ends it there.
         raw = self._line.split(b"\x00", 1)[0].decode("ascii", "replace")
         self._line.clear()
@@ -284,7 +268,7 @@ class MarlinProtocol:
         if not text:
             return None
         self._queued += 1
-        return LineReceived(text, line_number)
+        return CommandReceived(text, line_number)
 
     def _line_error(self, error: LineError) -> LineRejected:
         # Error, Resend and ok go out back to back: printcore mistakes them for two
@@ -304,15 +288,16 @@ class MarlinProtocol:
         return data
 
     # -- sending -----------------------------------------------------------------------
-    def send(self, event: Ok | Output) -> bytes:
-        if isinstance(event, Ok):
+    def send(self, event: CommandDone | Output) -> bytes:
+        if isinstance(event, CommandDone):
             self._queued = max(0, self._queued - 1)
-            if event.suffix:
-                self._output += f"ok {event.suffix}\n".encode("ascii", "replace")
+            if event.ok_suffix:
+                self._output += f"ok {event.ok_suffix}\n".encode("ascii", "replace")
             elif self.advanced_ok:
-                number = f" N{event.line_number}" if event.line_number is not None else ""
+                number = f" N{event.number}" if event.number is not None else ""
+                room = PLANNER_ROOM if event.room is None else event.room
                 # The slot this command held is free again by the time `ok` goes out.
-                self._output += f"ok{number} P{event.planner_free} B{self.queue_free}\n".encode()
+                self._output += f"ok{number} P{room} B{self.queue_free}\n".encode()
             elif not self._output:
                 return b"ok\n"  # the usual answer, with nothing waiting to go before it
             else:

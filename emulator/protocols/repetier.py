@@ -18,6 +18,7 @@ shell), not the last byte that arrived: bytes wait unread while the command buff
 
 from dataclasses import dataclass
 
+from fake_marlin.emulator.protocols.base import CommandDone, CommandReceived, Output
 from fake_marlin.emulator.protocols.marlin import strtol, xor_checksum
 from fake_marlin.wire import repetier
 from fake_marlin.wire.gcode import strip_comment
@@ -32,14 +33,7 @@ WAIT_INTERVAL = 1.0  # seconds of quiet, with nothing queued, between `wait` lin
 _U32 = 0xFFFFFFFF
 
 
-# Events out.
-@dataclass(frozen=True)
-class CommandReceived:
-    text: str  # G-code, as the printer runs it
-    line_number: int | None
-    binary: bool
-
-
+# Events out (and CommandReceived: protocols.base; `last_was_binary` says how it came).
 @dataclass(frozen=True)
 class CommandRejected:
     """Damaged or out of sequence: the printer asked for line `resend` again."""
@@ -58,15 +52,8 @@ class EmergencyStop:
 Event = CommandReceived | CommandRejected | EmergencyStop
 
 
-# Events in.
-@dataclass(frozen=True)
-class Done:
-    """A queued command has run: its slot in the command buffer is free."""
-
-
-@dataclass(frozen=True)
-class Output:
-    text: str
+# Events in: CommandDone (which says nothing: the `ok` came when it was queued) and Output,
+# protocols.base.
 
 
 class RepetierProtocol:
@@ -75,7 +62,7 @@ class RepetierProtocol:
         self.last_line = 0  # lastLineNumber: unsigned 32 bits, as `N-1 M110` makes it 2^32-1
         self.act_line = 0  # the line number last read, which the `ok` of any line repeats
         self.waiting_for_resend = -1
-        self._last_was_binary = False  # wasLastCommandReceivedAsBinary
+        self.last_was_binary = False  # wasLastCommandReceivedAsBinary: how the last command came
         self._binary = False
         self._binary_size: int | None = None
         self._comment = False
@@ -129,7 +116,7 @@ class RepetierProtocol:
     def _take(self, byte: int) -> Event | None:
         self._command.append(byte)
         if len(self._command) == 1 and not self._comment:
-            if self.waiting_for_resend >= 0 and self._last_was_binary:
+            if self.waiting_for_resend >= 0 and self.last_was_binary:
                 # Resynchronising after a binary error: only a run of NULs ends it.
                 self.waiting_for_resend = self.waiting_for_resend - 1 if byte == 0 else RESYNC_NULS
                 self._command.clear()
@@ -184,7 +171,7 @@ class RepetierProtocol:
         if star >= 0:
             if xor_checksum(raw[:star]) != strtol(raw[star + 1:]) & 0xFF:
                 return self._request_resend("Wrong checksum", error=True)
-        elif self._last_was_binary:
+        elif self.last_was_binary:
             # A damaged binary command can look like an ASCII line: after binary, only a
             # checked line is believed.
             return self._request_resend(
@@ -229,9 +216,9 @@ class RepetierProtocol:
             self.last_line = n
         self._queued += 1
         self._say(f"ok {self.act_line}")
-        self._last_was_binary = self._binary
+        self.last_was_binary = self._binary
         self.waiting_for_resend = -1
-        return CommandReceived(text, n, self._binary)
+        return CommandReceived(text, n)
 
     def _request_resend(self, reason: str, error: bool = False) -> CommandRejected:
         """`error`: the firmware says why first (its debug level shows errors by default)."""
@@ -254,8 +241,8 @@ class RepetierProtocol:
         self._say("wait")
 
     # -- sending -----------------------------------------------------------------------
-    def send(self, event: Done | Output) -> bytes:
-        if isinstance(event, Done):
+    def send(self, event: CommandDone | Output) -> bytes:
+        if isinstance(event, CommandDone):
             self._queued = max(0, self._queued - 1)
         elif isinstance(event, Output):
             self._say(event.text)

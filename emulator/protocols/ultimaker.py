@@ -9,6 +9,7 @@ Mirrors UltimakerMarlin's SerialProtocol::readCommand byte for byte.
 from dataclasses import dataclass
 from enum import Enum, auto
 
+from fake_marlin.emulator.protocols.base import CommandDone, CommandReceived, Output
 from fake_marlin.wire import ultimaker as wire
 
 
@@ -30,13 +31,8 @@ class RejectReason(Enum):
     QUEUE_FULL = auto()
 
 
-# Events out of the protocol.
-@dataclass(frozen=True)
-class CommandReceived:
-    seq: int
-    text: str
-
-
+# Events out of the protocol (and CommandReceived, its `number` the packet's sequence number:
+# protocols.base).
 @dataclass(frozen=True)
 class PacketRejected:
     reason: RejectReason
@@ -47,16 +43,7 @@ class PacketRejected:
 Event = CommandReceived | PacketRejected
 
 
-# Events into the protocol.
-@dataclass(frozen=True)
-class CommandDone:
-    """The command of packet `seq` has been handled; `response` is its response data."""
-
-    seq: int
-    room: int
-    response: tuple[str, ...] = ()
-
-
+# Events into the protocol (and CommandDone, Output: protocols.base).
 @dataclass(frozen=True)
 class RoomChanged:
     """The planner's free room is now `room`; sends a `q` frame if the host last saw 0."""
@@ -73,13 +60,6 @@ class OutOfBandKind(Enum):
 @dataclass(frozen=True)
 class OutOfBand:
     kind: OutOfBandKind
-    text: str
-
-
-@dataclass(frozen=True)
-class ResponseData:
-    """Unsolicited response data (e.g. a temperature report while waiting to heat)."""
-
     text: str
 
 
@@ -141,7 +121,7 @@ class UltimakerProtocol:
             return None
         self._queued += 1
         seq, self.expected_seq = self.expected_seq, wire.next_seq(self.expected_seq)
-        return end, CommandReceived(seq, payload.decode("ascii"))
+        return end, CommandReceived(payload.decode("ascii"), seq)
 
     def _step(self, byte: int) -> Event | None:
         state = self.state
@@ -212,7 +192,7 @@ class UltimakerProtocol:
             )
         self._queued += 1
         self.expected_seq = wire.next_seq(self.expected_seq)
-        return CommandReceived(self._seq, payload.decode("ascii"))
+        return CommandReceived(payload.decode("ascii"), self._seq)
 
     def _reject(self, reason: RejectReason, message: str) -> PacketRejected:
         self.state = ReceiverState.WAIT_FOR_HEADER_BYTE
@@ -221,21 +201,24 @@ class UltimakerProtocol:
         return PacketRejected(reason, message, self.expected_seq)
 
     # -- sending -----------------------------------------------------------------------
-    def send(self, event: CommandDone | RoomChanged | OutOfBand | ResponseData) -> bytes:
+    def send(self, event: CommandDone | RoomChanged | OutOfBand | Output) -> bytes:
         """Bytes for the host, including any automatic answers still waiting to go out."""
         if isinstance(event, CommandDone):
+            if event.number is None:
+                raise TypeError(f"an `o` frame needs the sequence number it answers: {event!r}")
             self._queued = max(0, self._queued - 1)
-            self.room = event.room
+            if event.room is not None:
+                self.room = event.room
             for line in event.response:
                 self._output += f"{line}\n".encode("ascii", "replace")
-            self._output += self._frame("o", event.seq)
+            self._output += self._frame("o", event.number)
         elif isinstance(event, RoomChanged):
             self.room = event.room
             if self.reported_room == 0 and event.room > 0:
                 self._output += self._frame("q", 0)
         elif isinstance(event, OutOfBand):
             self._output += f"{event.kind.value}{event.text}\n".encode("ascii", "replace")
-        elif isinstance(event, ResponseData):
+        elif isinstance(event, Output):
             self._output += f"{event.text}\n".encode("ascii", "replace")
         else:
             raise TypeError(f"cannot send {event!r}")

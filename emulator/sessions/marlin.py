@@ -10,18 +10,13 @@ import trio
 from fake_marlin.emulator.journal.writer import Journal
 from fake_marlin.emulator.printer.gcode import Command, parse, plain_move
 from fake_marlin.emulator.printer.model import SELF_REPORTING, Printer, Reply
-from fake_marlin.emulator.protocols.marlin import (
-    EmergencyCommand,
-    LineReceived,
-    MarlinProtocol,
-    Ok,
-    Output,
-)
+from fake_marlin.emulator.protocols.base import CommandDone, CommandReceived, Output
+from fake_marlin.emulator.protocols.marlin import EmergencyCommand, MarlinProtocol
 from fake_marlin.emulator.sessions.driver import CommandRun, finish, hold_queue_full
 from fake_marlin.emulator.sessions.marlin_binary import BinaryTransfer
 
 BUSY_INTERVAL = 2.0  # HOST_KEEPALIVE default; M113 changes it
-PLAIN_OK = Ok()  # without ADVANCED_OK an `ok` says nothing of its line: one event does for all
+PLAIN_OK = CommandDone()  # without ADVANCED_OK an `ok` says nothing of its line: one event does for all
 
 
 def boot_lines(printer: Printer, reason: str) -> list[str]:
@@ -56,8 +51,8 @@ class MarlinSession:
         self.reset_reason = reset_reason
         self._before_command = before_command
         self.protocol = MarlinProtocol(advanced_ok)
-        self._backlog: deque[LineReceived] = deque()  # received while a command waits
-        self._waiting: tuple[LineReceived, Command, CommandRun, float] | None = None
+        self._backlog: deque[CommandReceived] = deque()  # received while a command waits
+        self._waiting: tuple[CommandReceived, Command, CommandRun, float] | None = None
         self._executor_idle = False  # until the executor task runs
         self._work = trio.Event()
         self._reports: tuple[object, ...] = ()
@@ -93,7 +88,7 @@ class MarlinSession:
                 return
         self.protocol.receive_data(data)
         while (event := self.protocol.next_event()) is not None:
-            if isinstance(event, LineReceived):
+            if isinstance(event, CommandReceived):
                 if self._executor_idle and not self._backlog:
                     self._run_here(event)  # the common case: no task hop on the way to `ok`
                 else:
@@ -157,12 +152,12 @@ class MarlinSession:
             if self.printer.halted:
                 self.announce(reply.lines)
 
-    def _run_here(self, received: LineReceived) -> None:
+    def _run_here(self, received: CommandReceived) -> None:
         """Run a command from the host now; if it must wait, hand it to the executor task."""
         sd = self.printer.sd
         if sd.saving is not None and not re.match(r"M29(?!\d)", received.text):
             sd.write_line(received.text)  # M28 stores lines instead of running them
-            self._send(self.protocol.send(Ok(received.line_number, planner_free=self._room())))
+            self._send(self.protocol.send(CommandDone(received.number, room=self._room())))
             return
         # ADVANCED_OK's `ok` says the planner's room after the move: it waits for the planning.
         move = None if self.protocol.advanced_ok else plain_move(received.text)
@@ -182,7 +177,7 @@ class MarlinSession:
             self._waiting = (received, command, run, until)
             self._work.set()
 
-    def _moved_at_once(self, received: LineReceived) -> None:
+    def _moved_at_once(self, received: CommandReceived) -> None:
         """A straight move the planner had room for completes at once and prints nothing: the
         journal has it, then its `ok` goes out (the model plans it later, as of the time it
         arrived: Printer.move_at_once)."""
@@ -193,7 +188,7 @@ class MarlinSession:
         self.printer.catch_up()
 
     async def _carry_on(
-        self, received: LineReceived, command: Command, run: CommandRun, until: float
+        self, received: CommandReceived, command: Command, run: CommandRun, until: float
     ) -> None:
         reply = await self._finish_waiting(command, run, until)
         if self.printer.halted:
@@ -223,7 +218,7 @@ class MarlinSession:
         finally:
             self._set_busy(False)
 
-    def _done(self, received: LineReceived, command: Command, reply: Reply) -> None:
+    def _done(self, received: CommandReceived, command: Command, reply: Reply) -> None:
         if self.printer.halted:
             self.announce(reply.lines)
             self._wake()
@@ -231,7 +226,7 @@ class MarlinSession:
         self._protocol_effects(command)
         self.announce(reply.lines)
         self._send(
-            self.protocol.send(Ok(received.line_number, reply.ok_suffix, planner_free=self._room()))
+            self.protocol.send(CommandDone(received.number, self._room(), ok_suffix=reply.ok_suffix))
         )
         self.protocol.saving_to_sd = self.printer.sd.saving is not None
         if self._report_settings() != self._reports:

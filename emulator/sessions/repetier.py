@@ -17,12 +17,10 @@ from fake_marlin.emulator.printer.model import Printer, Reply
 from fake_marlin.emulator.protocols.repetier import (
     STALL_TIMEOUT,
     WAIT_INTERVAL,
-    CommandReceived,
-    Done,
     EmergencyStop,
-    Output,
     RepetierProtocol,
 )
+from fake_marlin.emulator.protocols.base import CommandDone, CommandReceived, Output
 from fake_marlin.emulator.sessions.driver import hold_queue_full, run_command
 
 VERSION = "1.0.4"
@@ -137,7 +135,7 @@ class RepetierSession:
             await self._run(received.text)
             if self.printer.halted:
                 break
-            self._send(self.protocol.send(Done()))
+            self._send(self.protocol.send(CommandDone()))
             self.feed(b"")  # the buffer has room again: read on
         await trio.sleep_forever()
 

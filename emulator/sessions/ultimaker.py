@@ -9,12 +9,10 @@ import trio
 from fake_marlin.emulator.journal.writer import Journal
 from fake_marlin.emulator.printer.gcode import plain_move
 from fake_marlin.emulator.printer.model import Printer, Reply
+from fake_marlin.emulator.protocols.base import CommandDone, CommandReceived, Output
 from fake_marlin.emulator.protocols.ultimaker import (
-    CommandDone,
-    CommandReceived,
     OutOfBand,
     OutOfBandKind,
-    ResponseData,
     RoomChanged,
     UltimakerProtocol,
 )
@@ -122,7 +120,7 @@ class UltimakerSession:
             self._backlog.clear()
             return
         room = self.printer.room(trio.current_time())
-        self._send(self.protocol.send(CommandDone(received.seq, room, reply.response_data())))
+        self._send(self.protocol.send(CommandDone(received.number, room, reply.response_data())))
         if self.protocol.reported_room == 0:
             self._room_may_change.set()  # the room reporter times the `q` for when it opens
 
@@ -130,7 +128,7 @@ class UltimakerSession:
         if text.startswith("Error:"):
             self.announce((text,))
         else:
-            self._send(self.protocol.send(ResponseData(text)))
+            self._send(self.protocol.send(Output(text)))
 
     def _update_room(self) -> None:
         self._send(self.protocol.send(RoomChanged(self.printer.room(trio.current_time()))))
