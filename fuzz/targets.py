@@ -188,8 +188,8 @@ def ultimaker_receiver(data: bytes) -> None:
 
 
 def repetier_receiver(data: bytes) -> None:
-    """RepetierProtocol, with the shell's stall timeout now and then; every reply must read as
-    Ok, Skip, Resend or an error line on the host."""
+    """RepetierProtocol, with its stall timeout now and then; every reply must read as Ok,
+    Skip, Resend or an error line on the host."""
     choice, chunks = split(data)
     printer = rep.RepetierProtocol(queue_size=1 + (choice & 3))
     host = host_repetier.LineParser()
@@ -202,6 +202,7 @@ def repetier_receiver(data: bytes) -> None:
             assert isinstance(event, answer) or is_error, events
         return events
 
+    clock = 0.0  # the firmware's time: a millisecond a piece, and the stalls
     for number, piece in enumerate(chunks):
         printer.receive_data(piece)
         while True:
@@ -221,11 +222,15 @@ def repetier_receiver(data: bytes) -> None:
                 assert events[-2:] == resend, events
             else:
                 assert isinstance(event, rep.EmergencyStop), event
+        clock += 0.001
+        printer.time_passed(clock)
         said()  # M110's ok, skips
         assert not printer._input or not printer.reading
         assert len(printer._command) < rep.MAX_CMD_SIZE
-        if choice >> (number % 6 + 2) & 1 and printer.expects_more:
-            printer.stalled()  # 200 ms without a byte
+        stalled = printer.expects_more and printer.reading and not printer.has_input
+        if choice >> (number % 6 + 2) & 1 and stalled:
+            clock += rep.STALL_TIMEOUT  # 200 ms without a byte
+            printer.time_passed(clock)
             assert said()[-2:] == [resend_request(printer.last_line + 1 & 0xFFFFFFFF),
                                    host_repetier.Ok()]
         if not printer.reading and not printer.has_input:
@@ -265,9 +270,10 @@ def commstack_receiver(data: bytes) -> None:
     for number, piece in enumerate(chunks):
         printer.receive_data(piece)
         drain()
+        printer.time_passed(2.0 * number)  # a piece every two seconds
         assert len(printer._frames._buffer) < cs.READ_LIMIT
         if choice >> (number % 7 + 1) & 1 and printer.reading:
-            printer.read_timed_out()  # a second without a byte: the frame ends where it is
+            printer.time_passed(2.0 * number + cs.READ_TIMEOUT)  # the frame ends where it is
             drain()
             assert not printer.reading
 

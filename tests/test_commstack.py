@@ -191,10 +191,28 @@ def test_a_read_ends_when_no_byte_has_come_for_a_second():
     whole, rather than with the next frame."""
     mk20 = CommStackProtocol()
     mk20.receive_data(encode_packet(PING)[:-1])
+    mk20.time_passed(10.0)  # the bytes came at 10 s
     assert mk20.next_event() is None and mk20.reading
-    mk20.read_timed_out()
+    assert mk20.next_deadline() == 11.0
+    mk20.time_passed(10.999)
+    assert mk20.next_event() is None and mk20.reading
+    mk20.time_passed(11.0)
     assert mk20.next_event() == RequestReceived(Task.PING, b"")
-    assert not mk20.reading
+    assert not mk20.reading and mk20.next_deadline() is None
+
+
+def test_a_byte_that_comes_before_the_second_is_out_restarts_it():
+    mk20 = CommStackProtocol()
+    frame = encode_packet(PING)[:-1]
+    mk20.receive_data(frame[:3])
+    mk20.time_passed(10.0)
+    mk20.receive_data(frame[3:])
+    mk20.time_passed(10.9)  # read at once: the second counts from here
+    assert mk20.next_deadline() == 11.9
+    mk20.time_passed(11.5)
+    assert mk20.next_event() is None and mk20.reading
+    mk20.time_passed(11.9)
+    assert mk20.next_event() == RequestReceived(Task.PING, b"")
 
 
 # -- the MK20's tasks -----------------------------------------------------------------------

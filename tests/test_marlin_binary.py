@@ -16,6 +16,8 @@ from fake_marlin.emulator.faults.rules import FaultKind, FaultRule, Trigger
 from fake_marlin.emulator.printer.model import DEFAULT_CAPABILITIES, Printer, PrinterConfig
 from fake_marlin.emulator.protocols.marlin_binary import (
     BUFFER_SIZE,
+    PACKET_MAX_WAIT,
+    TRANSFER_TIMEOUT,
     BackToAscii,
     FileAborted,
     FileClosed,
@@ -217,21 +219,54 @@ def test_a_packet_left_half_sent_times_out_into_a_resend():
     machine = MarlinBinaryProtocol()
     raw = encode(Packet(0, FILE, QUERY))
     replies(machine, raw[:5])
-    assert machine.mid_packet
-    machine.packet_timed_out()
+    machine.time_passed(1.0)  # the bytes came at 1 s
+    assert machine.mid_packet and machine.next_deadline() == 1.0 + PACKET_MAX_WAIT
+    machine.time_passed(1.0 + PACKET_MAX_WAIT - 0.001)
+    assert machine.data_to_send() == b""
+    machine.time_passed(1.0 + PACKET_MAX_WAIT)
     assert machine.data_to_send().decode().splitlines() == [
         "echo:Datastream timeout", "echo:Resend request 1", "rs0"]
     assert replies(machine, raw)[1] == ["ok0", VERSION_REPLY]
-    machine.packet_timed_out()  # between packets there is nothing to time out
+    machine.time_passed(2.0)
+    assert machine.next_deadline() is None  # between packets there is nothing to time out
+    machine.time_passed(60.0)
+    assert machine.data_to_send() == b""
+
+
+def test_each_byte_of_a_packet_restarts_its_timer():
+    machine = MarlinBinaryProtocol()
+    raw = encode(Packet(0, FILE, QUERY))
+    replies(machine, raw[:5])
+    machine.time_passed(1.0)
+    replies(machine, raw[5:7])
+    machine.time_passed(1.4)
+    assert machine.next_deadline() == 1.4 + PACKET_MAX_WAIT
+    machine.time_passed(1.0 + PACKET_MAX_WAIT)
     assert machine.data_to_send() == b""
 
 
 def test_an_idle_transfer_is_aborted_without_a_word():
     machine = opened()
-    event = machine.transfer_timed_out()
-    assert event == FileAborted(False, timed_out=True)
+    machine.time_passed(0.0)  # the OPEN came at 0 s
+    assert machine.next_deadline() == TRANSFER_TIMEOUT
+    machine.time_passed(TRANSFER_TIMEOUT - 0.001)
+    assert machine.next_event() is None
+    machine.time_passed(TRANSFER_TIMEOUT)
+    assert machine.next_event() == FileAborted(False, timed_out=True)
+    assert machine.next_event() is None  # it waits for its result
     assert machine.send(FileResult(True)) == b""
-    assert not machine.transfer_active and machine.transfer_timed_out() is None
+    assert not machine.transfer_active and machine.next_deadline() is None
+
+
+def test_a_file_packet_restarts_the_transfer_timer_and_other_bytes_do_not():
+    machine = opened()
+    machine.time_passed(0.0)
+    replies(machine, encode(Packet(1, FILE, WRITE, b"G28\n")))
+    machine.time_passed(4.0)
+    assert machine.next_deadline() == 4.0 + TRANSFER_TIMEOUT
+    replies(machine, b"noise")  # no token: no packet
+    machine.time_passed(6.0)
+    assert machine.next_deadline() == 4.0 + TRANSFER_TIMEOUT
 
 
 def test_the_bytes_after_close_are_handed_back_and_the_stream_lives_on():
@@ -288,15 +323,19 @@ class Uploader:
         self.transmissions = 0
         self.resends = 0
         self.data = b""
+        self.now = 0.0  # the firmware's time: a millisecond a transmission, and its silences
 
     def send(self, packet: Packet) -> list[str]:
         for _ in range(20):
             raw = self.damage(self.transmissions, encode(packet))
             self.transmissions += 1
             events, lines = replies(self.machine, raw)
+            self.now += 0.001
+            self.machine.time_passed(self.now)
             self.data += b"".join(event.data for event in events if isinstance(event, FileData))
             if not any(line.startswith(("ok", "rs", "ss")) for line in lines):
-                self.machine.packet_timed_out()
+                self.now += PACKET_MAX_WAIT  # silence
+                self.machine.time_passed(self.now)
                 lines += self.machine.data_to_send().decode().splitlines()
             if f"ok{packet.sync}" in lines or (packet.type == SYNC and packet.protocol == CONTROL
                                                 and any(line.startswith("ss") for line in lines)):

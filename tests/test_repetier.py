@@ -11,6 +11,8 @@ from hypothesis import strategies as st
 from fake_marlin.emulator.faults.layer import FaultConfig, parse_fault
 from fake_marlin.emulator.journal.verify import verify
 from fake_marlin.emulator.protocols.repetier import (
+    STALL_TIMEOUT,
+    WAIT_INTERVAL,
     CommandRejected,
     EmergencyStop,
     RepetierProtocol,
@@ -134,9 +136,10 @@ def test_fletcher16_catches_every_single_bit_error(command, data):
 @given(st.binary(max_size=600))
 def test_garbage_never_crashes_or_hangs_the_receiver(data):
     protocol = RepetierProtocol()
-    for chunk in (data[: len(data) // 2], data[len(data) // 2:]):
+    for n, chunk in enumerate((data[: len(data) // 2], data[len(data) // 2:])):
         received(protocol, chunk)
-        protocol.stalled()
+        protocol.time_passed(10.0 * n)
+        protocol.time_passed(10.0 * n + WAIT_INTERVAL)  # quiet: a Resend, or a wait
     assert not protocol.has_input or not protocol.reading
     host_parser = host_codec.LineParser()
     host_parser.receive_data(data)
@@ -225,11 +228,33 @@ def test_after_binary_an_ascii_line_needs_a_checksum():
 def test_silence_in_the_middle_of_a_command_and_m112():
     protocol = RepetierProtocol()
     received(protocol, binary("G1 X1", 1)[:3])
-    assert protocol.expects_more
-    protocol.stalled()
+    protocol.time_passed(1.0)  # read at 1 s
+    assert protocol.expects_more and protocol.next_deadline() == 1.0 + STALL_TIMEOUT
+    protocol.time_passed(1.0 + STALL_TIMEOUT - 0.001)
+    assert protocol.data_to_send() == b""
+    protocol.time_passed(1.0 + STALL_TIMEOUT)
     assert protocol.data_to_send() == b"\r\nResend:1\r\nok\r\n"
     events, _ = received(protocol, b"\0" * 31 + b"M112\n")
     assert events == [EmergencyStop("M112")]
+
+
+def test_an_idle_printer_says_wait_after_each_second_of_quiet_and_a_busy_one_does_not():
+    protocol = RepetierProtocol()
+    protocol.time_passed(0.0)  # it booted
+    assert protocol.next_deadline() == WAIT_INTERVAL
+    protocol.time_passed(WAIT_INTERVAL)
+    assert protocol.data_to_send() == b"wait\r\n"
+    assert protocol.next_deadline() == 2 * WAIT_INTERVAL
+    protocol.receive_data(ascii_line(1, "G1 X1"))
+    assert isinstance(protocol.next_event(), CommandReceived)
+    protocol.time_passed(1.5)
+    assert protocol.next_deadline() is None  # a command is queued: no `wait`
+    protocol.time_passed(9.0)
+    assert protocol.data_to_send() == b"ok 1\r\n"
+    protocol.send(CommandDone())  # it ran: the quiet counts from the last byte read
+    assert protocol.next_deadline() == 1.5 + WAIT_INTERVAL
+    protocol.time_passed(9.5)
+    assert protocol.data_to_send() == b"wait\r\n"
 
 
 # -- the printer, whole ---------------------------------------------------------------------

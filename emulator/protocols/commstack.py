@@ -4,7 +4,7 @@ Frames are read one at a time, as CommStack::process() reads them: `readBytesUnt
 256)` on the Teensy 3.1 core, which keeps the last byte of the buffer for a NUL, so a read ends
 at a 0x00 (taken from the line), after 255 bytes (the next byte, even a 0x00, is left for the
 next read: a 255-byte frame is followed by an empty one), or when no byte has come for the
-stream's timeout, 1 s (`read_timed_out`: the bytes so far are a frame). Each frame is copied
+stream's timeout, 1 s (told by `time_passed`: the bytes so far are a frame). Each frame is copied
 into the current header before its checksum is checked, so the task of any frame that decodes,
 sound or not, is the one a ResponseFailed is sent under next. A request whose data checksum is
 wrong is answered at once with an empty ResponseFailed for its task; a frame whose header
@@ -13,7 +13,9 @@ stray 0x00 makes it) is answered with a ResponseFailed for that current header's
 requests are answered; responses from the other side are passed on and never answered.
 """
 
+import math
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 from cobs import cobs  # type: ignore[import-untyped]  # the package has no type hints
 
@@ -78,8 +80,8 @@ class FrameReader:
         self._buffer += data
         self._timed_out = False
 
-    def time_out(self) -> None:
-        """No byte has come for READ_TIMEOUT: the read ends with what it has."""
+    def end_frame(self) -> None:
+        """The read gives up waiting (READ_TIMEOUT without a byte): it ends with what it has."""
         self._timed_out = bool(self._buffer)
 
     def next_frame(self) -> bytes | None:
@@ -101,18 +103,26 @@ class CommStackProtocol:
         self._frames = FrameReader()
         self._last_task = 0  # _currentHeader.taskID: what an undecodable frame is answered as
         self._output = bytearray()
+        self._last_byte = -math.inf  # when a byte last came
+        self._heard = False  # bytes came since the last time_passed()
 
     @property
     def reading(self) -> bool:
-        """A frame has begun and not ended: `read_timed_out` is due if nothing more comes."""
+        """A frame has begun and not ended: it ends READ_TIMEOUT after the last byte."""
         return self._frames.reading
 
     def receive_data(self, data: bytes) -> None:
         self._frames.receive_data(data)
+        self._heard = True
 
-    def read_timed_out(self) -> None:
-        """READ_TIMEOUT has passed since the last byte: the frame begun ends here."""
-        self._frames.time_out()
+    def time_passed(self, now: float) -> None:
+        if self._heard:
+            self._last_byte, self._heard = now, False
+        elif self.reading and now >= self._last_byte + READ_TIMEOUT:
+            self._frames.end_frame()  # next_event() gives the frame as it is
+
+    def next_deadline(self) -> float | None:
+        return self._last_byte + READ_TIMEOUT if self.reading else None
 
     def next_event(self) -> Event | None:
         frame = self._frames.next_frame()
@@ -159,3 +169,9 @@ def _first_byte(frame: bytes, default: int) -> int:
     except cobs.DecodeError:
         return default
     return raw[0] if raw else default
+
+
+if TYPE_CHECKING:  # mypy holds the machine to the shared interface
+    from fake_marlin.emulator.protocols.base import TimedMachine
+
+    _: type[TimedMachine[Event, Response]] = CommStackProtocol

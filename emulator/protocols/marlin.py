@@ -10,6 +10,7 @@ soon as their line arrives, however full the queue.
 
 import re
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 from enum import Enum, auto
 
 from fake_marlin.emulator.protocols.base import CommandDone, CommandReceived, Output
@@ -314,3 +315,9 @@ class MarlinProtocol:
         data = bytes(self._output)
         self._output.clear()
         return data
+
+
+if TYPE_CHECKING:  # mypy holds the machine to the shared interface
+    from fake_marlin.emulator.protocols.base import ProtocolMachine
+
+    _: type[ProtocolMachine[Event, CommandDone | Output]] = MarlinProtocol

@@ -10,12 +10,14 @@ Bytes go in through receive_data(); next_event() gives what the card must do (Fi
 FileData, FileClosed, FileAborted), and BackToAscii once the host closes binary mode. Each file
 event waits for the caller's FileResult (send()), which says whether the card managed it and
 brings the firmware's `PFT:` answer; until then next_event() gives nothing more. The machine
-reads no clock: the caller keeps the firmware's two timers (PACKET_MAX_WAIT, TRANSFER_TIMEOUT)
-and calls packet_timed_out() and transfer_timed_out() when one runs out.
+reads no clock: the firmware's two timers (PACKET_MAX_WAIT inside a packet, TRANSFER_TIMEOUT
+between file packets) run on the time the caller tells it (time_passed, next_deadline).
 """
 
+import math
 from dataclasses import dataclass
 from enum import Enum, auto
+from typing import TYPE_CHECKING
 
 import heatshrink2.core  # type: ignore[import-untyped]  # the package has no type hints
 
@@ -117,8 +119,12 @@ class MarlinBinaryProtocol:
         self._dummy = False
         self._decompressor: _Decompressor | None = None
         self._pending: FileEvent | None = None
+        self._timed_out: FileAborted | None = None  # a timer's event, for next_event()
         self._input = bytearray()
         self._output = bytearray()
+        self._last_byte = self._last_file_packet = -math.inf
+        self._heard = True  # entering binary mode counts as a byte (see time_passed)
+        self._file_packets_told = 0  # file_packets at the last time_passed()
         self._reset_packet()
 
     def _reset_packet(self) -> None:
@@ -142,13 +148,18 @@ class MarlinBinaryProtocol:
             raise UsageError("the binary protocol is in use already")
         self.mode = Mode.BINARY
         self._input += data
+        self._heard = True
 
     def receive_data(self, data: bytes) -> None:
         if self.mode is Mode.ASCII:
             raise UsageError("binary mode is closed: these bytes are the ASCII protocol's")
         self._input += data
+        self._heard = self._heard or bool(data)
 
     def next_event(self) -> Event | None:
+        if self._timed_out is not None:
+            timed_out, self._timed_out = self._timed_out, None
+            return timed_out
         if self.mode is not Mode.BINARY:
             return None
         data = self._input
@@ -264,11 +275,32 @@ class MarlinBinaryProtocol:
         self.sync = self.retries = 0  # the host must SYNC again
         self._reset_packet()
 
-    def packet_timed_out(self) -> None:
-        """PACKET_MAX_WAIT passed without a byte: a packet left half sent is asked for again."""
-        if self.mid_packet and self.mode is Mode.BINARY:
+    # -- time ----------------------------------------------------------------------------
+    def time_passed(self, now: float) -> None:
+        """The bytes and file packets read since the last call came now. A packet left half
+        sent for PACKET_MAX_WAIT is asked for again; an open transfer without a file packet
+        for TRANSFER_TIMEOUT is aborted (and its file removed) without a word to the host: a
+        FileAborted from next_event(), which waits for its FileResult."""
+        if self._heard:
+            self._last_byte, self._heard = now, False
+        if self.file_packets != self._file_packets_told:
+            self._last_file_packet, self._file_packets_told = now, self.file_packets
+        deadline = self.next_deadline()
+        if deadline is None or now < deadline or self.mode is not Mode.BINARY:
+            return
+        if self.mid_packet:
             self._say("echo:Datastream timeout")
             self._resend()
+        else:
+            self._timed_out = self._pending = FileAborted(self._dummy, timed_out=True)
+            self.mode = Mode.ANSWER_PENDING
+
+    def next_deadline(self) -> float | None:
+        if self.mid_packet:
+            return self._last_byte + PACKET_MAX_WAIT
+        if self.transfer_active and self.mode is not Mode.ASCII:
+            return self._last_file_packet + TRANSFER_TIMEOUT
+        return None
 
     # -- the requests ------------------------------------------------------------------
     def _dispatch(self, header: Header, payload: bytes) -> Event | None:
@@ -329,16 +361,6 @@ class MarlinBinaryProtocol:
                 return None
         return FileData(data) if data else None
 
-    def transfer_timed_out(self) -> FileAborted | None:
-        """TRANSFER_TIMEOUT passed without a file packet: an open transfer is aborted (and its
-        file removed), without a word to the host. The event waits for its FileResult."""
-        if not self.transfer_active or self.mode is not Mode.BINARY:
-            return None
-        event = FileAborted(self._dummy, timed_out=True)
-        self._pending = event
-        self.mode = Mode.ANSWER_PENDING
-        return event
-
     # -- sending -----------------------------------------------------------------------
     def send(self, result: FileResult) -> bytes:
         """The card's outcome of the pending file event; returns what the firmware says then."""
@@ -371,3 +393,9 @@ class MarlinBinaryProtocol:
         data = bytes(self._output)
         self._output.clear()
         return data
+
+
+if TYPE_CHECKING:  # mypy holds the machine to the shared interface
+    from fake_marlin.emulator.protocols.base import TimedMachine
+
+    _: type[TimedMachine[Event, FileResult]] = MarlinBinaryProtocol

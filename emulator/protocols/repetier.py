@@ -10,13 +10,15 @@ it is queued, before it runs. A repeat, at most 39 lines behind the last one, dr
 command the firmware then reads nothing until it has seen 31 NUL bytes in a row, so that it
 restarts on a command boundary.
 
-Time is the shell's: it calls `stalled()` when it has read no byte for 200 ms while a command
-was half read or a resend is awaited, and `idle()` after a second of that quiet with nothing
-queued. As in the firmware, the quiet counts from the last byte read (`bytes_read` tells the
-shell), not the last byte that arrived: bytes wait unread while the command buffer is full.
+Time is told (time_passed, next_deadline): no byte read for 200 ms while a command is half
+read or a resend is awaited draws a Resend; a second of that quiet with nothing queued draws
+`wait`. As in the firmware, the quiet counts from the last byte read, not the last byte that
+arrived: bytes wait unread while the command buffer is full.
 """
 
+import math
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 from fake_marlin.emulator.protocols.base import CommandDone, CommandReceived, Output
 from fake_marlin.emulator.protocols.marlin import strtol, xor_checksum
@@ -72,8 +74,10 @@ class RepetierProtocol:
         self._command = bytearray()
         self._output = bytearray()
         # Bytes the firmware has taken from its input (a flush drops the rest unread): its
-        # timeOfLastDataPacket is the moment it last read one, which the shell's timers need.
+        # timeOfLastDataPacket is the moment it last read one, where its timers count from.
         self.bytes_read = 0
+        self._bytes_told = -1  # bytes_read at the last time_passed(): the first one is the boot
+        self._last_read = -math.inf
 
     # -- receiving ---------------------------------------------------------------------
     def receive_data(self, data: bytes) -> None:
@@ -231,14 +235,31 @@ class RepetierProtocol:
         self._say("", f"Resend:{resend}", "ok")
         return CommandRejected(reason, resend)
 
-    # -- what the shell reports ----------------------------------------------------------
-    def stalled(self) -> None:
-        """No byte for STALL_TIMEOUT while expects_more: ask for the line again."""
-        self._request_resend("no data")
+    # -- time ----------------------------------------------------------------------------
+    def time_passed(self, now: float) -> None:
+        """Bytes read since the last call were read now (the first call: the firmware booted).
+        No byte read for STALL_TIMEOUT while expects_more: ask for the line again; quiet for
+        WAIT_INTERVAL with nothing queued: `wait`, which unblocks a host that lost an ok."""
+        if self.bytes_read != self._bytes_told:
+            self._last_read, self._bytes_told = now, self.bytes_read
+        deadline = self.next_deadline()
+        if deadline is None or now < deadline:
+            return
+        if self.expects_more:
+            self._request_resend("no data")
+        else:
+            self._say("wait")
+        self._last_read = now  # the quiet counts again from here
 
-    def idle(self) -> None:
-        """Quiet for WAIT_INTERVAL with nothing queued: unblock a host that lost an ok."""
-        self._say("wait")
+    def next_deadline(self) -> float | None:
+        """Only while the firmware reads and has read everything that came."""
+        if not self.reading or self.has_input:
+            return None
+        if self.expects_more:
+            return self._last_read + STALL_TIMEOUT
+        if self._queued == 0:
+            return self._last_read + WAIT_INTERVAL
+        return None
 
     # -- sending -----------------------------------------------------------------------
     def send(self, event: CommandDone | Output) -> bytes:
@@ -258,3 +279,9 @@ class RepetierProtocol:
         data = bytes(self._output)
         self._output.clear()
         return data
+
+
+if TYPE_CHECKING:  # mypy holds the machine to the shared interface
+    from fake_marlin.emulator.protocols.base import TimedMachine
+
+    _: type[TimedMachine[Event, CommandDone | Output]] = RepetierProtocol

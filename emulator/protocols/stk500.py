@@ -12,6 +12,7 @@ memories (avr_memory.BoardMemory); send(Answer) frames it for the host.
 """
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 from enum import Enum, auto
 
 from fake_marlin.emulator.protocols.avr_memory import PAGE_SIZE, BoardMemory
@@ -287,3 +288,9 @@ class Stk500Protocol:
         data = bytes(self._output)
         self._output.clear()
         return data
+
+
+if TYPE_CHECKING:  # mypy holds the machine to the shared interface
+    from fake_marlin.emulator.protocols.base import ProtocolMachine
+
+    _: type[ProtocolMachine[Event, Answer]] = Stk500Protocol

@@ -7,6 +7,7 @@ Mirrors UltimakerMarlin's SerialProtocol::readCommand byte for byte.
 """
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 from enum import Enum, auto
 
 from fake_marlin.emulator.protocols.base import CommandDone, CommandReceived, Output
@@ -43,7 +44,7 @@ class PacketRejected:
 Event = CommandReceived | PacketRejected
 
 
-# Events into the protocol (and CommandDone, Output: protocols.base).
+# Events into the protocol (and CommandDone, Output: protocols.base; EventIn below).
 @dataclass(frozen=True)
 class RoomChanged:
     """The planner's free room is now `room`; sends a `q` frame if the host last saw 0."""
@@ -61,6 +62,9 @@ class OutOfBandKind(Enum):
 class OutOfBand:
     kind: OutOfBandKind
     text: str
+
+
+EventIn = CommandDone | RoomChanged | OutOfBand | Output
 
 
 class UltimakerProtocol:
@@ -201,7 +205,7 @@ class UltimakerProtocol:
         return PacketRejected(reason, message, self.expected_seq)
 
     # -- sending -----------------------------------------------------------------------
-    def send(self, event: CommandDone | RoomChanged | OutOfBand | Output) -> bytes:
+    def send(self, event: EventIn) -> bytes:
         """Bytes for the host, including any automatic answers still waiting to go out."""
         if isinstance(event, CommandDone):
             if event.number is None:
@@ -232,3 +236,9 @@ class UltimakerProtocol:
     def _frame(self, kind: str, seq: int) -> bytes:
         self.reported_room = self.room
         return f"\n{wire.frame_body(kind, seq, self.room)}\n".encode("ascii")
+
+
+if TYPE_CHECKING:  # mypy holds the machine to the shared interface
+    from fake_marlin.emulator.protocols.base import ProtocolMachine
+
+    _: type[ProtocolMachine[Event, EventIn]] = UltimakerProtocol

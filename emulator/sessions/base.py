@@ -1,9 +1,13 @@
-"""What a session is to the printer server that makes one for each boot."""
+"""What a session is to the printer server that makes one for each boot, and the clock it
+gives a machine with timers."""
 
-from collections.abc import Iterable
-from typing import Protocol
+import math
+from collections.abc import Callable, Iterable
+from typing import Any, Protocol
 
 import trio
+
+from fake_marlin.emulator.protocols.base import TimedMachine
 
 
 class Session(Protocol):
@@ -42,3 +46,40 @@ class HandsOver(Protocol):
     @property
     def active(self) -> Session | None:
         """The session that speaks for the printer now; None while none does yet."""
+
+
+class MachineClock:
+    """Tells a TimedMachine the time: once the session has fed it bytes and read the events
+    (`tell`: what it read happened now), and whenever its next deadline comes (`run`). After
+    each, `after` handles what a timer may have made (the machine's events and words);
+    `running` says whether the firmware's timers run at all now (not while it is halted)."""
+
+    def __init__(
+        self,
+        machine: TimedMachine[Any, Any],
+        after: Callable[[], object],
+        running: Callable[[], bool] = lambda: True,
+    ) -> None:
+        self.machine = machine
+        self._after = after
+        self._running = running
+        self._changed = trio.Event()
+
+    def tell(self) -> None:
+        """It is now: what the machine read happened now, and its deadlines may have moved."""
+        self.machine.time_passed(trio.current_time())
+        self._after()
+        self._changed.set()
+
+    def changed(self) -> None:
+        """The session's state changed (what `running` says, say): look at the deadline again."""
+        self._changed.set()
+
+    async def run(self) -> None:
+        while True:
+            changed = self._changed = trio.Event()
+            deadline = self.machine.next_deadline() if self._running() else None
+            with trio.move_on_at(math.inf if deadline is None else deadline):
+                await changed.wait()
+                continue
+            self.tell()

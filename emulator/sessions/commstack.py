@@ -35,12 +35,12 @@ from fake_marlin.emulator.journal.writer import Journal
 from fake_marlin.emulator.printer.model import Printer
 from fake_marlin.emulator.printer.sdcard import OpenFile
 from fake_marlin.emulator.protocols.commstack import (
-    READ_TIMEOUT,
     CommStackProtocol,
     RequestReceived,
     Response,
     ResponseReceived,
 )
+from fake_marlin.emulator.sessions.base import MachineClock
 from fake_marlin.emulator.sessions.driver import run_command
 from fake_marlin.wire.commstack import MAX_DATA, CommType, Packet, Task, encode_packet
 from fake_marlin.wire.gcode import strip_comment
@@ -78,8 +78,9 @@ class CommStackSession:
         self._last_size = 0
         self._host_answered_ping = False
         self._paused_until = -math.inf
-        self._last_byte_at = -math.inf
-        self._bytes_came = trio.Event()
+        # readBytesUntil gives up on a frame when no byte has come for a second: what it has
+        # read by then is the frame (one whose 0x00 was lost is read whole).
+        self._clock = MachineClock(self.protocol, after=self._read_frames)
 
     def boot(self) -> None:
         pass  # the MK20 speaks first only with its pings
@@ -92,10 +93,8 @@ class CommStackSession:
 
     def feed(self, data: bytes) -> None:
         self.protocol.receive_data(data)
-        self._last_byte_at = trio.current_time()
         self._read_frames()
-        if self.protocol.reading:
-            self._bytes_came.set()
+        self._clock.tell()
 
     def _read_frames(self) -> None:
         while (event := self.protocol.next_event()) is not None:
@@ -114,20 +113,7 @@ class CommStackSession:
         async with trio.open_nursery() as nursery:
             nursery.start_soon(self._serve)
             nursery.start_soon(self._ping_host)
-            nursery.start_soon(self._time_out_reads)
-
-    async def _time_out_reads(self) -> None:
-        """readBytesUntil gives up on a frame when no byte has come for a second: what it has
-        read by then is the frame (one whose 0x00 was lost is read whole)."""
-        while True:
-            await self._bytes_came.wait()
-            self._bytes_came = trio.Event()
-            while self.protocol.reading:
-                deadline = self._last_byte_at + READ_TIMEOUT
-                await trio.sleep_until(deadline)
-                if self.protocol.reading and self._last_byte_at + READ_TIMEOUT <= deadline:
-                    self.protocol.read_timed_out()
-                    self._read_frames()
+            nursery.start_soon(self._clock.run)
 
     async def _ping_host(self) -> None:
         """Application::pingESP(): every 5 s until the other side answers."""

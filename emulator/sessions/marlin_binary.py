@@ -8,7 +8,6 @@ and opens the file as openFileWrite() does (`echo:SD card ok`, `echo:Now fresh f
 as Marlin's transfer script does); ABORT, or TRANSFER_TIMEOUT without a file packet, deletes it.
 """
 
-import math
 from collections.abc import Callable
 from pathlib import Path
 
@@ -16,8 +15,6 @@ import trio
 
 from fake_marlin.emulator.printer.model import Printer
 from fake_marlin.emulator.protocols.marlin_binary import (
-    PACKET_MAX_WAIT,
-    TRANSFER_TIMEOUT,
     BackToAscii,
     FileAborted,
     FileData,
@@ -27,6 +24,7 @@ from fake_marlin.emulator.protocols.marlin_binary import (
     MarlinBinaryProtocol,
     Mode,
 )
+from fake_marlin.emulator.sessions.base import MachineClock
 
 
 class BinaryTransfer:
@@ -37,9 +35,9 @@ class BinaryTransfer:
         # Made at the first M28 B1, then kept for the boot: the firmware's stream (its sync
         # number, an open transfer) lives on between binary sessions.
         self.protocol: MarlinBinaryProtocol | None = None
+        self._clock: MachineClock | None = None  # the machine's timers, made with it
+        self._clock_made = trio.Event()
         self._file: Path | None = None
-        self._last_byte = self._last_file_packet = 0.0
-        self._timers_changed = trio.Event()
 
     @property
     def active(self) -> bool:
@@ -50,19 +48,29 @@ class BinaryTransfer:
         if self.protocol is None:
             self.protocol = MarlinBinaryProtocol()
             self.protocol.receive_data(data)
+            self._clock = MachineClock(
+                self.protocol, after=self._read_events, running=lambda: not self.printer.halted
+            )
+            self._clock_made.set()
         else:
             self.protocol.enter(data)
-        self._last_byte = trio.current_time()
+        # M28 B1 ran now: the packet timer counts from here. What came with it is read once
+        # its `ok` is out (the session feeds b"").
+        self.protocol.time_passed(trio.current_time())
 
     def feed(self, data: bytes) -> bytes:
         """Bytes from the host; returns what follows the packet that closes binary mode."""
+        assert self.protocol is not None and self._clock is not None, "feed() before enter()"
+        self.protocol.receive_data(data)
+        unread = self._read_events()
+        self._clock.tell()  # what was read came now
+        return unread
+
+    def _read_events(self) -> bytes:
+        """The card's part in what the machine read (or a timer made); returns the bytes that
+        follow the packet that closes binary mode, if it came."""
         protocol = self.protocol
-        assert protocol is not None, "feed() before enter()"
-        protocol.receive_data(data)
-        now = trio.current_time()
-        if data:
-            self._last_byte = now
-        packets = protocol.file_packets
+        assert protocol is not None
         unread = b""
         while (event := protocol.next_event()) is not None:
             self._send(protocol.data_to_send())  # `ok<sync>` goes before what the card says
@@ -71,9 +79,6 @@ class BinaryTransfer:
                 break
             self._send(protocol.send(FileResult(self._on_card(event))))
         self._send(protocol.data_to_send())
-        if protocol.file_packets != packets:
-            self._last_file_packet = now
-        self._timers_changed.set()
         return unread
 
     # -- the card ----------------------------------------------------------------------
@@ -112,30 +117,6 @@ class BinaryTransfer:
 
     # -- the firmware's timers ---------------------------------------------------------
     async def run(self) -> None:
-        while True:
-            changed = self._timers_changed = trio.Event()
-            with trio.move_on_at(self._deadline()):
-                await changed.wait()
-                continue
-            self._time_out()
-
-    def _deadline(self) -> float:
-        protocol = self.protocol
-        if protocol is None or not self.active or self.printer.halted:
-            return math.inf
-        if protocol.mid_packet:
-            return self._last_byte + PACKET_MAX_WAIT
-        if protocol.transfer_active:
-            return self._last_file_packet + TRANSFER_TIMEOUT
-        return math.inf
-
-    def _time_out(self) -> None:
-        protocol = self.protocol
-        assert protocol is not None
-        if trio.current_time() < self._deadline():
-            return  # the host was heard from at the last moment
-        if protocol.mid_packet:
-            protocol.packet_timed_out()
-        elif (event := protocol.transfer_timed_out()) is not None:
-            self._send(protocol.send(FileResult(self._on_card(event))))
-        self._send(protocol.data_to_send())
+        await self._clock_made.wait()  # the first M28 B1 of the boot
+        assert self._clock is not None
+        await self._clock.run()

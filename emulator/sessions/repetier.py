@@ -14,13 +14,9 @@ import trio
 from fake_marlin.emulator.journal.writer import Journal
 from fake_marlin.emulator.printer.gcode import Command, parse
 from fake_marlin.emulator.printer.model import Printer, Reply
-from fake_marlin.emulator.protocols.repetier import (
-    STALL_TIMEOUT,
-    WAIT_INTERVAL,
-    EmergencyStop,
-    RepetierProtocol,
-)
 from fake_marlin.emulator.protocols.base import CommandDone, CommandReceived, Output
+from fake_marlin.emulator.protocols.repetier import EmergencyStop, RepetierProtocol
+from fake_marlin.emulator.sessions.base import MachineClock
 from fake_marlin.emulator.sessions.driver import hold_queue_full, run_command
 
 VERSION = "1.0.4"
@@ -78,11 +74,17 @@ class RepetierSession:
         self.protocol = RepetierProtocol()
         self._queue_in, self._queue_out = trio.open_memory_channel[CommandReceived](math.inf)
         self._running: Command | None = None
-        self._last_data = -math.inf
-        self._changed = {"line": trio.Event(), "busy": trio.Event(), "reports": trio.Event()}
+        self._changed = {"busy": trio.Event(), "reports": trio.Event()}
+        # A half-read command or an awaited resend meets silence: the firmware asks again
+        # (200 ms); idle, it says `wait` every second.
+        self._clock = MachineClock(
+            self.protocol,
+            after=lambda: self._send(self.protocol.data_to_send()),
+            running=lambda: not self.printer.halted,
+        )
 
     def boot(self) -> None:
-        self._last_data = trio.current_time()
+        self._clock.tell()  # the quiet counts from the boot
         self.announce(["start", f"Info:{self.reset_reason}", "Free RAM:3412", "SelectExtruder:0"])
 
     def announce(self, lines: Iterable[str]) -> None:
@@ -95,7 +97,6 @@ class RepetierSession:
     def feed(self, data: bytes) -> None:
         if self.printer.halted:
             return
-        read_before = self.protocol.bytes_read
         self.protocol.receive_data(data)
         while (event := self.protocol.next_event()) is not None:
             if isinstance(event, CommandReceived):
@@ -104,18 +105,18 @@ class RepetierSession:
                 self.announce(self.printer.emergency("M112", trio.current_time()))
                 self.journal.record(event.text)
                 break
-        if self.protocol.bytes_read != read_before:
-            # timeOfLastDataPacket: the firmware's timers count from the last byte it read.
-            # Bytes that arrive while its command buffer is full wait unread, so a command
-            # found damaged once the buffer frees draws one Resend now and the next only after
-            # 200 ms more of quiet, not a second one at once.
-            self._last_data = trio.current_time()
         self._send(self.protocol.data_to_send())
+        # timeOfLastDataPacket: the firmware's timers count from the last byte it read. Bytes
+        # that arrive while its command buffer is full wait unread, so a command found damaged
+        # once the buffer frees draws one Resend now and the next only after 200 ms more of
+        # quiet, not a second one at once.
+        self._clock.tell()
         self._wake()
 
     def _wake(self) -> None:
         for event in self._changed.values():
             event.set()
+        self._clock.changed()
 
     def _changes(self, task: str) -> trio.Event:
         event = self._changed[task] = trio.Event()
@@ -124,7 +125,7 @@ class RepetierSession:
     async def run(self) -> None:
         async with trio.open_nursery() as nursery:
             nursery.start_soon(self._execute_commands)
-            nursery.start_soon(self._watch_the_line)
+            nursery.start_soon(self._clock.run)
             nursery.start_soon(self._keep_host_alive)
             nursery.start_soon(self._report_temperatures)
 
@@ -182,32 +183,6 @@ class RepetierSession:
         return list(reply.response_data())
 
     # -- what the printer says on its own ----------------------------------------------
-    async def _watch_the_line(self) -> None:
-        """A half-read command or an awaited resend meets silence: ask again (200 ms); an
-        idle printer says `wait` every second. Silence counts from the last byte read."""
-        while True:
-            changed = self._changes("line")
-            protocol = self.protocol
-            deadline = math.inf
-            if not self.printer.halted and protocol.reading and not protocol.has_input:
-                if protocol.expects_more:
-                    deadline = self._last_data + STALL_TIMEOUT
-                elif self._idle():
-                    deadline = self._last_data + WAIT_INTERVAL
-            if trio.current_time() >= deadline:
-                if protocol.expects_more:
-                    protocol.stalled()
-                else:
-                    protocol.idle()
-                self._last_data = trio.current_time()
-                self._send(protocol.data_to_send())
-                continue
-            with trio.move_on_at(deadline):
-                await changed.wait()
-
-    def _idle(self) -> bool:
-        return self._running is None and self.protocol.queue_free == self.protocol.queue_size
-
     async def _keep_host_alive(self) -> None:
         """GCode::keepAlive: `busy:` every KEEP_ALIVE_INTERVAL while the buffer is full."""
         last_signal = -math.inf
