@@ -103,7 +103,7 @@ def test_the_sdist_holds_each_file_once_under_the_import_root(tmp_path: Path) ->
     names = [m.name.split("/", 1)[1] for m in members if m.isfile()]
     python = sorted(name for name in names if name.endswith(".py") or name.endswith("py.typed"))
     assert python == sorted(package_files())
-    assert {"pyproject.toml", "README.md", "LICENSE"} <= set(names)
+    assert {"pyproject.toml", "README.md", "LICENSE", "CHANGELOG.md"} <= set(names)
 
 
 def test_from_the_checkout_without_an_install_the_parts_import_under_fake_marlin() -> None:
