@@ -1,5 +1,5 @@
 """The bench's results: rows of figure, reference, ratio and goal, per section; printed as
-Markdown tables (to paste into the README) or as one JSON object.
+Markdown tables (to paste into docs/benchmark.md) or as one JSON object.
 
 A row's `met` is None where no goal is set, or where nothing could be measured (a host that is
 not installed, a flag the emulator does not have yet): absent is not failed.
