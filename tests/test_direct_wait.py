@@ -1,5 +1,6 @@
 """A link waiting for its next bytes straight in poll(2) while trio is idle (link/direct_wait.py):
-it must save trio's round per command, and never delay or starve anything trio would have run.
+it must save trio's round per command, and never delay or starve anything trio would have run;
+it reads trio's private run state only on the releases verified, and nowhere when told not to.
 
 These run on trio's real clock, with a thread as the host on the other end of a pipe: the direct
 wait is only taken where trio would block in epoll_wait itself, which an autojump clock never
@@ -19,9 +20,17 @@ import trio
 from fake_marlin.emulator.link import direct_wait
 from fake_marlin.emulator.link.base import HostOpened
 from fake_marlin.emulator.link.pty import PtyLink
-from fake_marlin.emulator.link.direct_wait import DirectWait, direct_waits_available
+from fake_marlin.emulator.link.direct_wait import (
+    VERIFIED_TRIO,
+    WAITS_VARIABLE,
+    DirectWait,
+    direct_waits_available,
+    waits_in_use,
+)
 
 HOST_GIVES_UP = 10.0  # seconds: a wait that hangs fails the test instead of the suite
+# What only direct waits do (no trip through trio per line): shown where they are in use.
+needs_direct_waits = pytest.mark.skipif(not waits_in_use()[0], reason=waits_in_use()[1])
 
 
 @contextmanager
@@ -57,10 +66,43 @@ def trio_waits(monkeypatch) -> list[int]:
     return waited
 
 
-async def test_the_installed_trio_lets_a_link_wait_directly():
-    # If this fails, trio's internals changed shape: every wait still works, through trio,
-    # and fake-marlin costs a scheduler round per command again (see link/direct_wait.py).
-    assert direct_waits_available()
+@pytest.fixture
+def fresh_verdict(monkeypatch) -> Iterator[None]:
+    """waits_in_use() decided again under the test's environment, and again after it."""
+    monkeypatch.delenv(WAITS_VARIABLE, raising=False)
+    waits_in_use.cache_clear()
+    yield
+    waits_in_use.cache_clear()
+
+
+async def test_a_verified_trio_lets_a_link_wait_directly(fresh_verdict):
+    # The verification itself: on a release in the list, trio's run state has the shape read
+    # (if not, every wait still works, through trio, at a scheduler round per command).
+    if trio.__version__ not in VERIFIED_TRIO:
+        pytest.skip(f"trio {trio.__version__} is not verified (see link/direct_wait.py)")
+    assert waits_in_use()[0] and direct_waits_available()
+    assert waits_in_use()[1] == (
+        f"trio {trio.__version__}: direct waits (a verified release; "
+        "FAKE_MARLIN_WAITS=trio turns them off)"
+    )
+
+
+async def test_an_unverified_trio_gets_trios_own_waits(fresh_verdict, monkeypatch, trio_waits):
+    monkeypatch.setattr(direct_wait.trio, "__version__", "0.99.0")
+    assert not waits_in_use()[0] and not direct_waits_available()
+    assert waits_in_use()[1] == (
+        f"trio 0.99.0: trio's own waits (direct waits are verified on trio {VERIFIED_TRIO[0]} "
+        f"to {VERIFIED_TRIO[-1]} only)"
+    )
+    printer_in = await answer_lines(20)
+    assert trio_waits.count(printer_in) == 20  # every wait through trio, and every line read
+
+
+async def test_the_variable_turns_direct_waits_off(fresh_verdict, monkeypatch, trio_waits):
+    monkeypatch.setenv(WAITS_VARIABLE, "trio")
+    assert waits_in_use()[1] == f"trio {trio.__version__}: trio's own waits (FAKE_MARLIN_WAITS=trio)"
+    printer_in = await answer_lines(20)
+    assert trio_waits.count(printer_in) == 20
 
 
 async def answer_lines(lines: int) -> int:
@@ -83,6 +125,7 @@ async def answer_lines(lines: int) -> int:
     return printer_in
 
 
+@needs_direct_waits
 async def test_a_host_sending_a_line_at_a_time_costs_no_trip_through_trio(trio_waits):
     printer_in = await answer_lines(200)
     # The first wait, before the loop was alone, may go through trio; the steady state never.
@@ -283,6 +326,7 @@ def pty_host() -> Iterator[tuple[PtyLink, int]]:
         link.close()
 
 
+@needs_direct_waits
 async def test_a_pty_link_reads_line_after_line_without_awaiting_while_trio_is_idle():
     lines = 100
     with pty_host() as (link, host):

@@ -1,11 +1,19 @@
 """Waiting for a link's next bytes without a round through trio's scheduler while trio has
 nothing else to do: the printer's answer to a host that sends one line at a time.
 
+This module is the one place where fake-marlin reads a dependency's private state: trio's run
+state (the runner, its run queue, deadlines, idle waiters, instruments and epoll object, each
+task's schedule count). It does so only on the trio releases in VERIFIED_TRIO, on which the
+test suite passed with it (tests/test_direct_wait.py, and the end-to-end runs over ptys); on
+any other trio, or with FAKE_MARLIN_WAITS=trio, it imports nothing private and every wait is
+trio's own `wait_readable`: slower, never wrong. `fake-marlin --version` says which are in use.
+
 Why. Between two commands the printer sleeps for as long as the host takes to read the answer
 and send the next line (150 µs and more), and wakes up cold. Woken through trio
 (`wait_readable`: an epoll registration, a round of the run loop, the switch back into the
 task), the bench's bare responder cost 83 µs of CPU per command where a plain select() loop
 cost 44 µs; waiting as below, 58 µs (our host streaming 2,000 moves, four rounds side by side).
+`fake-marlin bench --only hosts,cpu` measures both kinds of wait side by side.
 
 How. When no task is due to run, nobody waits for idleness (`wait_all_tasks_blocked`, a
 MockClock's autojump) and the next deadline is still ahead, trio's next step would be one
@@ -22,13 +30,15 @@ told so at once (`checkpoint_if_cancelled`, before the wait), as at any checkpoi
 "No task is due" means more than an empty run queue: the tasks woken in the same round as
 this one wait in a list of trio's loop until their turn (see `_alone`).
 
-The runner's state it reads (run queue, tasks, deadlines, idle waiters, the epoll object) is
-trio's private state; where this trio does not have it in that shape, `_RunnerView.of` says no
-and every wait is trio's own: slower, never wrong. tests/test_direct_wait.py fails if the
-installed trio lost it.
+Verifying a new trio release: add it to VERIFIED_TRIO, install it in the test venv, and run
+`pytest tests/test_direct_wait.py -m "e2e or not e2e"` and the end-to-end tests; a release
+whose run state no longer has the shape read here fails test_direct_wait's first test (and
+`_RunnerView.of` turns the waits off rather than misread it).
 """
 
+import functools
 import math
+import os
 import select
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -36,11 +46,35 @@ from typing import Any
 
 import trio
 
-_RUN_CONTEXT: Any
-try:
-    from trio._core._run import GLOBAL_RUN_CONTEXT as _RUN_CONTEXT
-except ImportError:  # pragma: no cover - a trio laid out otherwise: every wait is trio's
-    _RUN_CONTEXT = None
+# The releases the suite has verified direct waits on. Older ones lack the run state read here
+# in this shape (before 0.30 it was laid out otherwise); newer ones are unknown until verified.
+VERIFIED_TRIO = ("0.30.0", "0.31.0", "0.32.0", "0.33.0", "0.34.0", "0.35.0")
+WAITS_VARIABLE = "FAKE_MARLIN_WAITS"  # `trio`: trio's own waits, even on a verified trio
+
+
+@functools.cache
+def waits_in_use() -> tuple[bool, str]:
+    """Whether links may wait directly in this process, and why, in words for --version."""
+    version = trio.__version__
+    if os.environ.get(WAITS_VARIABLE, "").strip().lower() == "trio":
+        return False, f"trio {version}: trio's own waits ({WAITS_VARIABLE}=trio)"
+    if version not in VERIFIED_TRIO:
+        return False, (f"trio {version}: trio's own waits (direct waits are verified on trio "
+                       f"{VERIFIED_TRIO[0]} to {VERIFIED_TRIO[-1]} only)")
+    if _run_context() is None:
+        return False, f"trio {version}: trio's own waits (its run state is not where it was)"
+    return True, f"trio {version}: direct waits (a verified release; {WAITS_VARIABLE}=trio turns them off)"
+
+
+@functools.cache
+def _run_context() -> Any:
+    """trio's run context, imported only on a verified release (None where it is not there)."""
+    try:
+        from trio._core._run import GLOBAL_RUN_CONTEXT
+    except ImportError:  # pragma: no cover - a verified release has it
+        return None
+    return GLOBAL_RUN_CONTEXT
+
 
 MAX_TASKS = 256  # past this many tasks (a printer has about 10), every wait is trio's
 _MAX_TIMEOUT = 86400.0  # trio's own cap on one wait (seconds)
@@ -82,7 +116,7 @@ class _RunnerView:
 
 
 def _current_runner() -> Any:
-    return getattr(_RUN_CONTEXT, "runner", None)
+    return getattr(_run_context(), "runner", None) if waits_in_use()[0] else None
 
 
 class DirectWait:
@@ -96,6 +130,7 @@ class DirectWait:
         self._alone_task: trio.lowlevel.Task | None = None
         self._alone_steps = -1
         self._poll = select.poll()
+        self._context = _run_context() if waits_in_use()[0] else None  # None: trio's waits
 
     async def readable(self) -> None:
         """Return once the fd is readable (or failed, or is being closed: trio's
@@ -112,9 +147,12 @@ class DirectWait:
         """Wait directly if trio has nothing else due: True once the fd is readable, False
         (having waited for nothing, or for what else trio now has to do) where the caller must
         await readable()."""
+        context = self._context
+        if context is None:
+            return False
         # The checks of _current_view and _alone are made here first, without the calls, in
         # the usual case: the same run, and this task not suspended since it was found alone.
-        runner = getattr(_RUN_CONTEXT, "runner", None)
+        runner = getattr(context, "runner", None)
         view = self._view if runner is self._runner else self._current_view()
         if view is None or view.runnable:
             return False
@@ -122,7 +160,7 @@ class DirectWait:
         hooks = view.instrumented_hooks
         if runner.waiting_for_idle or "before_io_wait" in hooks or "after_io_wait" in hooks:
             return False  # they expect to hear of, or around, trio's own wait
-        task = _RUN_CONTEXT.task
+        task = context.task
         if not (task._schedule_points == self._alone_steps and task is self._alone_task
                 or self._alone(runner)):
             return False
@@ -165,7 +203,7 @@ class DirectWait:
 
 
 def direct_waits_available() -> bool:
-    """Whether, inside this trio run, waits can be made directly (for the tests: where it is
-    False, this trio's internals changed and every wait goes through trio)."""
+    """Whether, inside this trio run, waits can be made directly (False on a trio release not
+    verified, with FAKE_MARLIN_WAITS=trio, or where this trio's run state changed shape)."""
     runner = _current_runner()
     return runner is not None and _RunnerView.of(runner) is not None
