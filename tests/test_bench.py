@@ -45,6 +45,14 @@ def test_quick_hosts_bench_reports_complete_runs_and_cleans_up(tmp_path):
     rows = {row["host"]: row for row in section["rows"]
             if row.get("printer", "fake-marlin") == "fake-marlin"}
     assert {"ours-marlin", "octoprint", "printcore", "ours-ultimaker"} == rows.keys()
+    # Beside each host, fake-marlin without its direct waits (link/direct_wait.py), side by side.
+    trio_waits = {row["host"]: row for row in section["rows"]
+                  if row.get("printer") == "fake-marlin, trio's own waits"}
+    assert {row["host"] for row in rows.values() if row["installed"]} - {"ours-ultimaker"} == (
+        trio_waits.keys())
+    for row in trio_waits.values():
+        assert row["fake_marlin"]["complete"] and row["met"] is None
+        assert row["fake_marlin"]["acknowledged"] == report["moves"]
     # Beside each host with a goal, the same host against the bare responder on trio: the floor.
     floors = {row["host"]: row for row in section["rows"] if "bare_on_trio" in row}
     assert "ours-marlin" in floors

@@ -37,6 +37,7 @@ from fake_marlin.emulator.bench.runs import (
     stream,
     write_job,
 )
+from fake_marlin.emulator.link.direct_wait import WAITS_VARIABLE, waits_in_use
 from fake_marlin.host import ClientOptions
 from fake_marlin.host.codecs import ultimaker as ultimaker_codec
 from fake_marlin.wire import ultimaker as ultimaker_wire
@@ -70,7 +71,7 @@ class Bench:
         """`rounds` runs against each target, alternating which goes first (ABBA...) so that
         the machine's drift during the pair falls on both alike. Cached per host: the hosts and
         cpu sections share our Marlin host's runs."""
-        key = f"{host.key}:{first.argv}:{second.argv}:{len(job)}"
+        key = f"{host.key}:{first}:{second}:{len(job)}"
         if key not in self._pairs:
             firsts: list[Run] = []
             seconds: list[Run] = []
@@ -117,8 +118,9 @@ def _paired_ratio(values: list[float | None], references: list[float | None]) ->
 
 
 # -- 1. host throughput ---------------------------------------------------------------------
-HOST_GOALS = {"ours-marlin": 0.9, "octoprint": 0.95}
+HOST_GOALS = {"ours-marlin": 0.9, "octoprint": 0.95, "printcore": 0.95}
 ULTIMAKER_GOAL = 5000.0
+TRIO_WAITS = "trio's own waits"  # the variant without direct waits (link/direct_wait.py)
 
 
 def _throughput_printer() -> Target:
@@ -128,6 +130,12 @@ def _throughput_printer() -> Target:
     S1, whose intervals are simulated seconds (a position every 5 ms of wall time at --speed
     1000), and it would be timing its own reading of those."""
     return printer("marlin", "--speed", SPEED, *(f"--capability={name}=0" for name in AUTOREPORTS))
+
+
+def _with_trio_waits(target: Target) -> Target:
+    """The same printer waiting for its pty through trio alone, as on a trio release that
+    direct waits are not verified on."""
+    return target.with_env(f"{target.label}, {TRIO_WAITS}", **{WAITS_VARIABLE: "trio"})
 
 
 def hosts(bench: Bench) -> Section:
@@ -143,19 +151,24 @@ def hosts(bench: Bench) -> Section:
             section.rows.append(Row(host.label, host.missing, data={"host": host.key,
                                                                    "installed": False}))
             continue
-        pair = bench.pair(host, marlin, BARE, job, path)
-        emulated, bare = (_summary(runs) for runs in pair)
-        ratio = _paired_ratio(*([run.rate for run in runs] for runs in pair))
         goal = HOST_GOALS.get(host.key)
-        complete = emulated["complete"] and bare["complete"]
-        section.rows.append(Row(
-            host.label, _figure(emulated), _figure(bare), ratio,
-            f"ratio ≥ {goal}" if goal else "—",
-            None if goal is None else complete and ratio is not None and ratio >= goal,
-            {"host": host.key, "printer": "fake-marlin", "installed": True,
-             "fake_marlin": emulated, "bare": bare},
-        ))
-        if host.key in HOST_GOALS:  # how near its goal any trio printer could come
+        # fake-marlin as it runs here (direct waits on a verified trio), then without them.
+        for target, label, row_goal in ((marlin, host.label, goal),
+                                        (_with_trio_waits(marlin),
+                                         f"{host.label}, fake-marlin on {TRIO_WAITS}", None)):
+            printer_name = f"fake-marlin, {TRIO_WAITS}" if target.env else "fake-marlin"
+            pair = bench.pair(host, target, BARE, job, path)
+            emulated, bare = (_summary(runs) for runs in pair)
+            ratio = _paired_ratio(*([run.rate for run in runs] for runs in pair))
+            complete = emulated["complete"] and bare["complete"]
+            section.rows.append(Row(
+                label, _figure(emulated), _figure(bare), ratio,
+                f"ratio ≥ {row_goal}" if row_goal else "—",
+                None if row_goal is None else complete and ratio is not None and ratio >= row_goal,
+                {"host": host.key, "printer": printer_name, "installed": True,
+                 "fake_marlin": emulated, "bare": bare},
+            ))
+        if goal is not None:  # how near its goal any trio printer could come
             section.rows.append(_trio_floor_row(bench, host, job, path))
     ultimaker = our_host("ultimaker")
     runs = [stream(bench.procs, ultimaker, printer("ultimaker", "--speed", SPEED), path, len(job))
@@ -168,6 +181,8 @@ def hosts(bench: Bench) -> Section:
         emulated["complete"] and value is not None and value >= ULTIMAKER_GOAL,
         {"host": ultimaker.key, "installed": True, "fake_marlin": emulated, "bare": None},
     ))
+    section.notes.append(f"waits: {waits_in_use()[1]}; the rows `on {TRIO_WAITS}` run "
+                         f"fake-marlin with {WAITS_VARIABLE}=trio, side by side")
     section.notes.append(f"fake-marlin runs at --speed {SPEED}; the bare responder "
                          "(fake_marlin.emulator.bench.responder) answers each line at once and "
                          "simulates nothing; every host and printer is a process of its own; "
@@ -202,20 +217,28 @@ def cpu(bench: Bench) -> Section:
     job, path = bench.throughput_job()
     section = Section("cpu", f"Printer CPU per command: our host, Marlin, {len(job)} moves",
                       ("process", "µs CPU per command", "bare responder"))
-    measured = _cpu_per_command(
-        bench.pair(our_host("marlin"), _throughput_printer(), BARE, job, path))
-    if measured is None:
-        section.rows.append(Row("fake-marlin", "not measured: a run was incomplete"))
+    # The ratio to the bare responder is a figure, not a goal: what a user feels is the host's
+    # speed (the hosts section), and a cheaper command is not worth a dependency's private state.
+    mine: float | None = None  # as fake-marlin runs here (direct waits on a verified trio)
+    for target, label in ((_throughput_printer(), "fake-marlin --protocol marlin"),
+                          (_with_trio_waits(_throughput_printer()),
+                           f"fake-marlin --protocol marlin, {TRIO_WAITS}")):
+        measured = _cpu_per_command(bench.pair(our_host("marlin"), target, BARE, job, path))
+        if measured is None:
+            section.rows.append(Row(label, "not measured: a run was incomplete"))
+            continue
+        emulated, bare = measured
+        us, reference = statistics.median(emulated), statistics.median(bare)
+        if not target.env:
+            mine = us
+        section.rows.append(Row(label, f"{us:.1f} µs", f"{reference:.1f} µs",
+                                _paired_ratio(list(emulated), list(bare)), "—", None,
+                                {"fake_marlin_us": us, "bare_us": reference,
+                                 "rounds": len(emulated), "printer": target.label}))
+    if mine is None:
         return section
-    emulated, bare = measured
-    mine, reference = statistics.median(emulated), statistics.median(bare)
-    ratio = _paired_ratio(list(emulated), list(bare))
-    data = {"fake_marlin_us": mine, "bare_us": reference, "rounds": len(emulated)}
-    section.rows.append(Row("fake-marlin --protocol marlin", f"{mine:.1f} µs",
-                            f"{reference:.1f} µs", ratio, "ratio ≤ 2", ratio is not None and
-                            ratio <= 2, data))
     section.rows.append(Row("fake-marlin, absolute", f"{mine:.1f} µs", "—", None,
-                            "≤ 100 µs (unloaded machine)", mine <= 100, data))
+                            "≤ 100 µs (unloaded machine)", mine <= 100, {"fake_marlin_us": mine}))
     section.rows.append(_trace_row(bench, job, path))
     floor = _cpu_per_command(bench.pair(our_host("marlin"), BARE_ON_TRIO, BARE, job, path))
     if floor is not None:

@@ -74,6 +74,10 @@ def printcore() -> Host:
 class Target:
     label: str
     argv: list[str]
+    env: tuple[tuple[str, str], ...] = ()  # set in its environment, beside the bench's own
+
+    def with_env(self, label: str, **variables: str) -> "Target":
+        return Target(label, self.argv, (*self.env, *variables.items()))
 
 
 def printer(protocol: str, *extra: str) -> Target:
@@ -115,7 +119,8 @@ class Run:
 
 
 def start_printer(procs: Processes, target: Target, lines: int = 1) -> tuple[Proc, list[str]]:
-    proc = procs.start(target.label.split()[0], target.argv)
+    env = {**os.environ, **dict(target.env)} if target.env else None
+    proc = procs.start(target.label.split()[0], target.argv, env)
     try:
         return proc, proc.read_lines(lines, START_TIMEOUT)
     except BaseException:
