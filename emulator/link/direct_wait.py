@@ -30,10 +30,10 @@ told so at once (`checkpoint_if_cancelled`, before the wait), as at any checkpoi
 "No task is due" means more than an empty run queue: the tasks woken in the same round as
 this one wait in a list of trio's loop until their turn (see `_alone`).
 
-Verifying a new trio release: add it to VERIFIED_TRIO, install it in the test venv, and run
-`pytest tests/test_direct_wait.py -m "e2e or not e2e"` and the end-to-end tests; a release
-whose run state no longer has the shape read here fails test_direct_wait's first test (and
-`_RunnerView.of` turns the waits off rather than misread it).
+Verifying a new trio release: add it to VERIFIED_TRIO and run `python -m tests.verify_trio
+VERSION` (this checkout and that trio in a venv of their own; the direct-wait tests and the
+end-to-end runs over ptys and TCP). A release whose run state no longer has the shape read
+here fails there (and `_RunnerView.of` turns the waits off rather than misread it).
 """
 
 import functools
