@@ -1,4 +1,4 @@
-"""`fake-marlin --tcp` and `--rfc2217`: which link each printer gets, for emulator/cli/main.py.
+"""`fake-marlin --tcp` and `--rfc2217`: which link each printer gets, for emulator/cli/printers.py.
 
     add_link_arguments(parser)          # --tcp [HOST:]PORT | --rfc2217 [HOST:]PORT
     check_link_arguments(parser, args)  # after parse_args: options that need a pty

@@ -1,0 +1,378 @@
+"""`fake-marlin` without a command: run virtual printers, each on a pseudo-terminal."""
+
+import argparse
+import contextlib
+import json
+import os
+import signal
+import sys
+import tempfile
+from pathlib import Path
+
+import trio
+
+from fake_marlin import __version__
+from fake_marlin.emulator.control.server import Controller, check_control_path, serve_control
+from fake_marlin.emulator.faults.layer import FaultConfig, parse_fault
+from fake_marlin.emulator.journal.writer import Journal
+from fake_marlin.emulator.cli.links import (
+    LinkError,
+    add_link_arguments,
+    check_link_arguments,
+    make_link,
+)
+from fake_marlin.emulator.link.pty import PtyLink
+from fake_marlin.emulator.link.tcp import TcpLink
+from fake_marlin.emulator.printer.model import DEFAULT_CAPABILITIES, Printer, PrinterConfig
+from fake_marlin.emulator.cli.farm import (
+    MAX_PRINTERS,
+    PrinterPlan,
+    check_patterns,
+    copies,
+    load_farm,
+    numbered,
+)
+from fake_marlin.emulator.scenario.definition import PrinterSetup, ScenarioError, add_fault_table
+from fake_marlin.emulator.scenario.definition import load as load_scenario
+from fake_marlin.emulator.server.clock import ScaledClock
+from fake_marlin.emulator.server.flash_file import FlashFile, FlashFileError
+from fake_marlin.emulator.trace.writer import Trace, TraceError
+from fake_marlin.emulator.server.lifecycle import PROTOCOLS, PrinterServer
+
+
+def _positive_float(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+    if not value > 0 or value == float("inf"):
+        raise argparse.ArgumentTypeError(f"must be a positive number, got {text!r}")
+    return value
+
+
+def _non_negative_float(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+    if not 0 <= value < float("inf"):
+        raise argparse.ArgumentTypeError(f"must be zero or more, got {text!r}")
+    return value
+
+
+def _capability(text: str) -> tuple[str, bool]:
+    name, _, value = text.partition("=")
+    if not name or not name.replace("_", "").isalnum() or value not in ("0", "1"):
+        raise argparse.ArgumentTypeError(f"expected NAME=0 or NAME=1, got {text!r}")
+    return name.upper(), value == "1"
+
+
+def _baud(text: str) -> int | str:
+    if text == "host":
+        return text
+    if not text.isdigit() or int(text) <= 0:
+        raise argparse.ArgumentTypeError(f"must be a positive whole number or `host`, got {text!r}")
+    return int(text)
+
+
+def _extruder_count(text: str) -> int:
+    if not text.isdigit() or not 1 <= int(text) <= 8:
+        raise argparse.ArgumentTypeError(f"must be a whole number from 1 to 8, got {text!r}")
+    return int(text)
+
+
+def _printer_count(text: str) -> int:
+    if not text.isdigit() or not 1 <= int(text) <= MAX_PRINTERS:
+        raise argparse.ArgumentTypeError(f"must be a whole number from 1 to {MAX_PRINTERS}, got {text!r}")
+    return int(text)
+
+
+def _json_table(text: str) -> dict[str, object]:
+    try:
+        table = json.loads(text)
+    except ValueError as error:
+        raise argparse.ArgumentTypeError(f"not JSON: {error}") from None
+    if not isinstance(table, dict):
+        raise argparse.ArgumentTypeError(f"expected a JSON object, got {text!r}")
+    return table
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="fake-marlin",
+        description="Start a virtual Marlin printer on a pseudo-terminal and print its /dev/pts path.",
+        epilog="Also: `fake-marlin scenario run PATH...` runs scenarios with the built-in host; "
+        "`fake-marlin verify JOB.gcode JOURNAL` checks a journal against its job; "
+        "`fake-marlin bench` measures its speed against a bare responder; "
+        "`fake-marlin report TRACE` turns a --trace file into an HTML page.",
+    )
+    parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
+    parser.add_argument(
+        "--protocol", choices=PROTOCOLS, default="auto",
+        help="wire protocol; auto (default) decides from each connection's first bytes",
+    )
+    parser.add_argument("--link", metavar="PATH", help="also make PATH a symlink to the pty "
+                        "(with --printers, a pattern with {n}: /tmp/printer-{n})")
+    parser.add_argument("--journal", metavar="FILE", help="append each executed command to FILE "
+                        "(with --printers, a pattern with {n})")
+    add_link_arguments(parser)
+    parser.add_argument(
+        "--printers", type=_printer_count, default=1, metavar="N",
+        help="serve N independent printers from this process, one pty each; their paths are "
+        "printed one per line, in order (default 1)",
+    )
+    parser.add_argument(
+        "--farm", metavar="FILE",
+        help="serve the printers a farm file describes (TOML: [[printer]] tables with count, "
+        "protocol, scenario, faults, link, journal, tcp...; see docs/farm.md)",
+    )
+    parser.add_argument(
+        "--speed", type=_positive_float, default=1.0, metavar="X",
+        help="run simulated printer time X times faster than real time (default 1)",
+    )
+    parser.add_argument("--extruders", type=_extruder_count, default=1, metavar="N")
+    parser.add_argument(
+        "--sd-dir", metavar="DIR",
+        help="directory that backs the SD card (default: a temporary one, removed at exit; "
+        "with --printers, a pattern with {n}, made if missing)",
+    )
+    parser.add_argument(
+        "--flash-file", metavar="FILE",
+        help="keep the board's 256 KiB flash (what avrdude writes through the bootloader) in "
+        "FILE across runs, created erased if missing (default: in memory, erased at start; with "
+        "--printers, a pattern with {n}; see docs/bootloader.md)",
+    )
+    parser.add_argument(
+        "--trace", metavar="FILE",
+        help="write a wire trace to FILE: every byte each way, commands, planner room, heaters, "
+        "faults and resets, as JSON lines (gzip if FILE ends in .gz; with several printers, a "
+        "pattern with {n}); `fake-marlin report FILE` shows it, see docs/trace.md",
+    )
+    parser.add_argument(
+        "--advanced-ok", action="store_true", help="Marlin's ADVANCED_OK: `ok N.. P.. B..`"
+    )
+    parser.add_argument(
+        "--capability", action="append", default=[], metavar="NAME=0|1", type=_capability,
+        help="set one M115 capability (repeatable), e.g. AUTOREPORT_TEMP=0",
+    )
+    parser.add_argument(
+        "--fault", action="append", default=[], metavar="DIRECTION:KIND=RATE",
+        help="damage the line, e.g. to-printer:bit-errors=1e-4 or to-host:drop-bytes=0.001 "
+        "(repeatable)",
+    )
+    parser.add_argument(
+        "--fault-table", action="append", default=[], metavar="JSON", type=_json_table,
+        help='a fault as a scenario\'s [[fault]] table, in JSON (repeatable), e.g. '
+        '\'{"kind": "drop", "direction": "to-host", "nth": 3}\'',
+    )
+    parser.add_argument("--seed", type=int, default=0, help="seed for random faults (default 0)")
+    parser.add_argument(
+        "--scenario", metavar="FILE",
+        help="take the printer's settings and faults from a scenario file (its job is not run)",
+    )
+    parser.add_argument(
+        "--baud", metavar="RATE", type=_baud, nargs="?", const="host",
+        help="pace the line: each byte costs 10/RATE s each way; without RATE (or `host`), at the "
+        "rate the host set on the port; default: no pacing",
+    )
+    parser.add_argument("--latency-ms", type=_non_negative_float, default=0.0, metavar="MS",
+                        help="delay each way, in milliseconds (default 0)")
+    parser.add_argument("--jitter-ms", type=_non_negative_float, default=0.0, metavar="MS",
+                        help="plus up to this much at random, order kept (default 0)")
+    parser.add_argument("--control", metavar="SOCKET",
+                        help="serve the control channel (JSON lines) on this Unix socket")
+    parser.add_argument(
+        "--boot-delay", type=_non_negative_float, default=0.0, metavar="SECONDS",
+        help="simulated time a reset takes before the printer answers (default 0)",
+    )
+    return parser
+
+
+class _Symlink:
+    def __init__(self, path: str | None, target: str) -> None:
+        self.path = path
+        self.target = target
+
+    def create(self) -> None:
+        if self.path is None:
+            return
+        if os.path.lexists(self.path):
+            if not os.path.islink(self.path):
+                raise OSError(f"{self.path} exists and is not a symlink; refusing to replace it")
+            os.unlink(self.path)
+        os.symlink(self.target, self.path)
+
+    def remove(self) -> None:
+        if self.path and os.path.islink(self.path) and os.readlink(self.path) == self.target:
+            os.unlink(self.path)
+
+    def retarget(self, target: str) -> None:
+        """The pty came back under a new name (a `disconnect` fault): the link follows it."""
+        if self.path and os.path.islink(self.path) and os.readlink(self.path) == self.target:
+            os.unlink(self.path)
+            os.symlink(target, self.path)
+        self.target = target
+
+
+async def _serve_until_signalled(printers: list["_Running"], control: str | None) -> None:
+    with trio.open_signal_receiver(signal.SIGINT, signal.SIGTERM, signal.SIGHUP) as signals:
+        async with trio.open_nursery() as nursery:
+            for printer in printers:
+                await nursery.start(printer.server.run)
+            if control:
+                controller = Controller([printer.server for printer in printers])
+                await nursery.start(serve_control, control, controller)
+            # Every printer is up before any path is printed: a farm's host may open them all
+            # as soon as it reads the list.
+            print("\n".join(printer.link.path for printer in printers), flush=True)
+            async for _ in signals:
+                nursery.cancel_scope.cancel()
+                break
+
+
+def _interrupt(signum, frame):
+    raise KeyboardInterrupt
+
+
+def _plans(parser: argparse.ArgumentParser, args: argparse.Namespace) -> list[PrinterPlan]:
+    """What to serve: the farm file's printers, or --printers copies of the one the flags say."""
+    if args.farm:
+        given = [flag for flag, value in (
+            ("--printers", args.printers != 1), ("--scenario", args.scenario),
+            ("--link", args.link), ("--journal", args.journal), ("--sd-dir", args.sd_dir),
+            ("--tcp", args.tcp), ("--rfc2217", args.rfc2217), ("--fault", args.fault),
+            ("--fault-table", args.fault_table),
+        ) if value]
+        if given:
+            parser.error(f"argument --farm: {given[0]} goes in the farm file's [[printer]] tables")
+        try:
+            return load_farm(args.farm)
+        except ScenarioError as error:
+            parser.error(f"argument --farm: {error}")
+    setup = PrinterSetup(
+        protocol=args.protocol, extruders=args.extruders, boot_delay=args.boot_delay,
+        advanced_ok=args.advanced_ok, latency=args.latency_ms / 1000, jitter=args.jitter_ms / 1000,
+        baud=args.baud if isinstance(args.baud, int) else None, baud_from_host=args.baud == "host",
+    )
+    faults = FaultConfig(seed=args.seed)
+    if args.scenario:
+        try:
+            scenario = load_scenario(args.scenario)
+        except ScenarioError as error:
+            parser.error(f"argument --scenario: {error}")
+        setup, faults = scenario.printer, scenario.faults
+    for spec in args.fault:
+        try:
+            faults = parse_fault(spec, faults)
+        except ValueError as error:
+            parser.error(f"argument --fault: {error}")
+    for number, table in enumerate(args.fault_table, start=1):
+        try:
+            faults = add_fault_table(faults, table, f"--fault-table #{number}")
+        except ScenarioError as error:
+            parser.error(f"argument {error}")
+    if args.printers > 1:
+        for flag, value in (("--link", args.link), ("--journal", args.journal),
+                            ("--sd-dir", args.sd_dir)):
+            if value and "{n}" not in value:
+                parser.error(f"argument {flag}: with --printers, put {{n}} in it (the printer's "
+                             f"number, from 1), e.g. {flag} /tmp/printer-{{n}}")
+    elif args.sd_dir and "{n}" not in args.sd_dir and not os.path.isdir(args.sd_dir):
+        parser.error(f"argument --sd-dir: no directory {args.sd_dir}")
+    base = PrinterPlan(
+        1, setup, faults, args.link, args.journal, args.sd_dir,
+        tcp=args.tcp, rfc2217=args.rfc2217,
+    )
+    return copies(base, args.printers)
+
+
+class _Running:
+    """One printer of this process and what it holds open: its link, symlink, journal, card."""
+
+    def __init__(self, plan: PrinterPlan, capabilities: dict[str, bool], in_farm: bool,
+                 cleanup: contextlib.ExitStack, flash_file: str | None = None,
+                 trace_file: str | None = None, speed: float = 1.0) -> None:
+        self.plan = plan
+        flash = FlashFile.open(flash_file) if flash_file else None
+        if flash is not None:
+            cleanup.callback(flash.close)
+        self.journal = Journal.open(plan.journal)
+        cleanup.callback(self.journal.close)
+        trace = None
+        if trace_file:
+            trace = Trace.open(trace_file, plan.setup.protocol, speed, plan.faults.seed,
+                               printer=plan.number)
+            cleanup.callback(trace.close)
+        self.link: PtyLink | TcpLink = make_link(plan.tcp, plan.rfc2217) or PtyLink()
+        cleanup.callback(self.link.close)
+        self.symlink = _Symlink(plan.link, self.link.path)
+        self.symlink.create()
+        cleanup.callback(self.symlink.remove)
+
+        def new_path(path: str) -> None:
+            self.symlink.retarget(path)
+            # The line came back on a new pty: say where, as at start (which printer, in a farm).
+            print(path if not in_farm else f"printer {plan.number}: {path}", flush=True)
+
+        self.link.on_new_path = new_path
+        if plan.sd_dir:
+            os.makedirs(plan.sd_dir, exist_ok=True)
+            sd_dir = Path(plan.sd_dir)
+        else:
+            sd_dir = Path(cleanup.enter_context(tempfile.TemporaryDirectory(prefix="fake-marlin-sd-")))
+        config = PrinterConfig(
+            extruders=plan.setup.extruders, sd_dir=sd_dir, capabilities=tuple(capabilities.items())
+        )
+        self.server = PrinterServer(
+            self.link, Printer(config), self.journal, plan.setup.server_config(plan.faults),
+            memory=flash.memory if flash else None, flash_changed=flash.save if flash else None,
+            trace=trace,
+        )
+
+
+def main(argv: list[str]) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    check_link_arguments(parser, args)
+    plans = _plans(parser, args)
+    try:
+        check_patterns(plans)
+    except ScenarioError as error:
+        parser.error(str(error))
+    if args.flash_file and (args.farm or len(plans) > 1 and "{n}" not in args.flash_file):
+        parser.error("argument --flash-file: " + (
+            "not with --farm: a farm's printers keep their flash in memory" if args.farm else
+            "with --printers, put {n} in it (the printer's number, from 1)"))
+    if args.trace and len(plans) > 1 and "{n}" not in args.trace:
+        parser.error("argument --trace: with several printers, put {n} in it (the printer's "
+                     "number, from 1)")
+    if args.control and (problem := check_control_path(args.control)):
+        parser.error(f"argument --control: {problem}")
+    # Until trio takes over the signals (and in case one lands before it does), a SIGTERM or
+    # SIGHUP must unwind like Ctrl-C so that the symlinks are removed.
+    signal.signal(signal.SIGTERM, _interrupt)
+    signal.signal(signal.SIGHUP, _interrupt)
+    capabilities = dict(DEFAULT_CAPABILITIES)
+    capabilities.update(args.capability)
+    with contextlib.ExitStack() as cleanup:
+        printers = []
+        for plan in plans:
+            try:
+                printers.append(_Running(plan, capabilities, len(plans) > 1, cleanup,
+                                         numbered(args.flash_file, plan.number),
+                                         numbered(args.trace, plan.number), args.speed))
+            except (LinkError, FlashFileError, TraceError) as error:
+                print(f"fake-marlin: {error}", file=sys.stderr)
+                return 2
+            except OSError as error:
+                what = (f"journal {error.filename}" if error.filename == plan.journal
+                        else f"link {plan.link}" if plan.link else "a pty")
+                print(f"fake-marlin: cannot create {what}: {error.strerror or error}",
+                      file=sys.stderr)
+                return 2
+        try:
+            trio.run(_serve_until_signalled, printers, args.control, clock=ScaledClock(args.speed))
+        except KeyboardInterrupt:
+            pass
+    return 0
+
