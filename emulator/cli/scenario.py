@@ -6,13 +6,15 @@ import json
 import sys
 from pathlib import Path
 
-from fake_marlin.emulator.scenario.definition import ScenarioError, load
-from fake_marlin.emulator.scenario.fuzz import PROTOCOLS as FUZZ_PROTOCOLS
-from fake_marlin.emulator.scenario.run import report, run_scenario
-from fake_marlin.emulator.trace.writer import TraceError
+# scenario.fuzz.PROTOCOLS (tests/test_cli.py checks): written out here, as the imports of the
+# scenarios and their runner are kept inside the functions that run them, so that building the
+# parser, which every `fake-marlin` does, imports neither.
+FUZZ_PROTOCOLS = ("ultimaker", "marlin", "repetier", "commstack")
 
 
 def scenario_files(paths: list[str]) -> list[Path]:
+    from fake_marlin.emulator.scenario.definition import ScenarioError
+
     files = []
     for name in paths:
         path = Path(name)
@@ -54,6 +56,10 @@ def main(argv: list[str]) -> int:
     args = parser.parse_args(argv)
     if args.command == "fuzz":
         return fuzz_main(args, fuzz)
+    from fake_marlin.emulator.scenario.definition import ScenarioError, load
+    from fake_marlin.emulator.scenario.run import report, run_scenario
+    from fake_marlin.emulator.trace.writer import TraceError
+
     try:
         scenarios = [load(path) for path in scenario_files(args.paths)]
     except ScenarioError as error:

@@ -9,16 +9,12 @@ import json
 import os
 import sys
 from collections import Counter
+from typing import TYPE_CHECKING
 
-from fake_marlin.emulator.journal.verify import (
-    FAILURES,
-    Kind,
-    Problem,
-    Verification,
-    describe_damage,
-    job_commands,
-    verify,
-)
+# The checking code is imported where it runs: building the parser, which every `fake-marlin`
+# does, imports none of it.
+if TYPE_CHECKING:
+    from fake_marlin.emulator.journal.verify import Problem, Verification
 
 PROG = "fake-marlin verify"
 
@@ -71,6 +67,8 @@ def read_text(path: str) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
+    from fake_marlin.emulator.journal.verify import job_commands, verify
+
     try:
         job = job_commands(read_text(args.job))
         journal = read_text(args.journal).split("\n")
@@ -90,9 +88,11 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def report(
-    result: Verification, strict: bool = False, limit: int = 20, allow_undetectable: bool = False
+    result: "Verification", strict: bool = False, limit: int = 20, allow_undetectable: bool = False
 ) -> str:
     """A few lines a person reads: the verdict, then the first `limit` failures."""
+    from fake_marlin.emulator.journal.verify import FAILURES, Kind
+
     failures = result.failures(strict, allow_undetectable)
     kinds: tuple[Kind, ...] = FAILURES + (Kind.EXTRA,) if strict else FAILURES
     # Damage past the checksum is rare and its own story: counted only where it happened.
@@ -123,7 +123,9 @@ def report(
     return "\n".join(lines)
 
 
-def _describe(problem: Problem) -> str:
+def _describe(problem: "Problem") -> str:
+    from fake_marlin.emulator.journal.verify import Kind, describe_damage
+
     command = problem.command
     match problem.kind:
         case Kind.MISSING:
@@ -140,7 +142,9 @@ def _describe(problem: Problem) -> str:
             return describe_damage(problem)
 
 
-def _as_json(result: Verification, args: argparse.Namespace) -> dict:
+def _as_json(result: "Verification", args: argparse.Namespace) -> dict:
+    from fake_marlin.emulator.journal.verify import Kind
+
     return {
         "ok": result.passed(args.strict, args.allow_undetectable),
         "strict": args.strict,
