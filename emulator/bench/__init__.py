@@ -4,7 +4,7 @@ This machine's speed drifts several-fold within a day, so no figure stands alone
 measured side by side with a reference in the same run (a bare ok-responder, the wire's limit,
 another protocol, one printer alone) and reported as a ratio to it.
 
-- `cli`: the command line, `main(argv)`.
+- `cli`: the command line, `fake-marlin bench` (`configure(commands)`, `run(args)`).
 - `measure`: the sections (hosts, cpu, baud, latency, simhour, farm).
 - `procs`: the subprocesses, their CPU and memory from /proc, and stopping them all.
 - `report`: the Markdown tables and the JSON object.

@@ -31,9 +31,9 @@ import sys
 import tempfile
 import time
 from pathlib import Path
-from typing import NoReturn
 
 from fake_marlin import __version__
+from fake_marlin.emulator.cli.parsing import Commands
 
 PROG = "fake-marlin bench"
 # The keys of measure.SECTIONS, in their order (tests/test_cli.py checks): written out here so
@@ -41,12 +41,6 @@ PROG = "fake-marlin bench"
 SECTIONS = ("hosts", "cpu", "baud", "latency", "simhour", "farm")
 DEFAULT_MOVES, QUICK_MOVES = 2000, 300
 DEFAULT_ROUNDS, QUICK_ROUNDS = 3, 1
-
-
-class _Parser(argparse.ArgumentParser):
-    def error(self, message: str) -> NoReturn:
-        """One line, no usage block: `fake-marlin bench: error: ... (see --help)`."""
-        self.exit(2, f"{PROG}: error: {message} (see {PROG} --help)\n")
 
 
 def _sections(text: str) -> tuple[str, ...]:
@@ -68,9 +62,12 @@ def _count(low: int, high: int):
     return parse
 
 
-def build_parser() -> argparse.ArgumentParser:
-    parser = _Parser(
-        prog=PROG, formatter_class=argparse.RawDescriptionHelpFormatter,
+def configure(commands: Commands) -> None:
+    """Add `bench` to fake-marlin's commands (main.py); its errors are one line, no usage block:
+    `fake-marlin bench: error: ... (see fake-marlin bench --help)`."""
+    parser = commands.add_parser(
+        "bench", help="measure fake-marlin and the hosts against references",
+        one_line_errors=True, formatter_class=argparse.RawDescriptionHelpFormatter,
         description="Measure fake-marlin and the hosts; each figure is a ratio to a reference "
         "measured side by side in the same run.",
         epilog="sections: " + ", ".join(SECTIONS),
@@ -86,7 +83,7 @@ def build_parser() -> argparse.ArgumentParser:
                         help=f"side-by-side rounds per throughput pair (default {DEFAULT_ROUNDS}; "
                         f"{QUICK_ROUNDS} with --quick)")
     parser.add_argument("--json", action="store_true", help="print one JSON object instead")
-    return parser
+    parser.set_defaults(run=run)
 
 
 def _interrupt(signum: int, frame: object) -> None:
@@ -94,7 +91,13 @@ def _interrupt(signum: int, frame: object) -> None:
 
 
 def main(argv: list[str]) -> int:
-    args = build_parser().parse_args(argv)
+    """`fake-marlin bench ARGV...`."""
+    from fake_marlin.emulator.cli.main import main
+
+    return main(["bench", *argv])
+
+
+def run(args: argparse.Namespace) -> int:
     from fake_marlin.emulator.bench.measure import Bench, Options, run_section
     from fake_marlin.emulator.bench.procs import Processes
     from fake_marlin.emulator.bench.report import as_json, markdown

@@ -1,1 +1,2 @@
-"""The command-line programs: `fake-marlin`, its `scenario` and `verify` commands."""
+"""The command line `fake-marlin` (main.py): printers without a command (printers.py), and the
+commands verify, scenario, report (their modules here) and bench (emulator/bench/cli.py)."""

@@ -57,7 +57,7 @@ def tcp_address(text: str) -> Address:
     return Address(host, int(port))
 
 
-def add_link_arguments(parser: argparse.ArgumentParser) -> None:
+def add_link_arguments(parser: argparse._ActionsContainer) -> None:
     group = parser.add_mutually_exclusive_group()
     group.add_argument(
         "--tcp", metavar="[HOST:]PORT", type=tcp_address,

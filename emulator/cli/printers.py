@@ -11,7 +11,6 @@ from pathlib import Path
 
 import trio
 
-from fake_marlin import __version__
 from fake_marlin.emulator.control.server import Controller, check_control_path, serve_control
 from fake_marlin.emulator.faults.layer import FaultConfig, parse_fault
 from fake_marlin.emulator.journal.writer import Journal
@@ -97,16 +96,8 @@ def _json_table(text: str) -> dict[str, object]:
     return table
 
 
-def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
-        prog="fake-marlin",
-        description="Start a virtual Marlin printer on a pseudo-terminal and print its /dev/pts path.",
-        epilog="Also: `fake-marlin scenario run PATH...` runs scenarios with the built-in host; "
-        "`fake-marlin verify JOB.gcode JOURNAL` checks a journal against its job; "
-        "`fake-marlin bench` measures its speed against a bare responder; "
-        "`fake-marlin report TRACE` turns a --trace file into an HTML page.",
-    )
-    parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
+def add_arguments(parser: argparse._ActionsContainer) -> None:
+    """The printer's options, on `fake-marlin`'s parser (main.py) or a group of it."""
     parser.add_argument(
         "--protocol", choices=PROTOCOLS, default="auto",
         help="wire protocol; auto (default) decides from each connection's first bytes",
@@ -185,7 +176,6 @@ def build_parser() -> argparse.ArgumentParser:
         "--boot-delay", type=_non_negative_float, default=0.0, metavar="SECONDS",
         help="simulated time a reset takes before the printer answers (default 0)",
     )
-    return parser
 
 
 class _Symlink:
@@ -330,9 +320,9 @@ class _Running:
         )
 
 
-def main(argv: list[str]) -> int:
-    parser = build_parser()
-    args = parser.parse_args(argv)
+def run(parser: argparse.ArgumentParser, args: argparse.Namespace) -> int:
+    """Serve the printers `args` describe until a signal; `parser` reports what is wrong in
+    them (main.py's, with the printer options)."""
     check_link_arguments(parser, args)
     plans = _plans(parser, args)
     try:

@@ -8,12 +8,15 @@ import argparse
 import sys
 from pathlib import Path
 
+from fake_marlin.emulator.cli.parsing import Commands
+
 PROG = "fake-marlin report"
 
 
-def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
-        prog=PROG,
+def configure(commands: Commands) -> None:
+    """Add `report` to fake-marlin's commands (main.py)."""
+    parser = commands.add_parser(
+        "report", help="turn a --trace file into one HTML page",
         description="Turn a wire trace (--trace FILE; plain or .gz JSON lines, docs/trace.md) "
         "into one HTML page that opens from disk: commands per second, the planner's room, the "
         "heaters and marks for resends, errors, faults and resets on one time axis; a summary "
@@ -25,11 +28,17 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--job", metavar="JOB.gcode",
                         help="the G-code the host streamed: judge exactly-once against it (a "
                         "scenario run's trace carries its own verdict)")
-    return parser
+    parser.set_defaults(run=run)
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+    """`fake-marlin report ARGV...`."""
+    from fake_marlin.emulator.cli.main import main
+
+    return main(["report", *(sys.argv[1:] if argv is None else argv)])
+
+
+def run(args: argparse.Namespace) -> int:
     from fake_marlin.emulator.report.build import MissingPlotting, require_plotting
 
     try:

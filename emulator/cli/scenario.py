@@ -6,6 +6,8 @@ import json
 import sys
 from pathlib import Path
 
+from fake_marlin.emulator.cli.parsing import Commands
+
 # scenario.fuzz.PROTOCOLS (tests/test_cli.py checks): written out here, as the imports of the
 # scenarios and their runner are kept inside the functions that run them, so that building the
 # parser, which every `fake-marlin` does, imports neither.
@@ -28,13 +30,17 @@ def scenario_files(paths: list[str]) -> list[Path]:
     return files
 
 
-def main(argv: list[str]) -> int:
-    parser = argparse.ArgumentParser(
-        prog="fake-marlin scenario",
+def configure(commands: Commands) -> None:
+    """Add `scenario` and its own commands, `run` and `fuzz`, to fake-marlin's (main.py)."""
+    parser = commands.add_parser(
+        "scenario", help="run scenario files (run) or random fault mixes (fuzz)",
         description="Run scenarios: the printer with its faults, and a host printing the job.",
     )
-    commands = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
-    run = commands.add_parser("run", help="run scenario files (or every *.toml in a directory)")
+    scenario_commands = parser.add_subparsers(dest="scenario_command", required=True,
+                                              metavar="COMMAND")
+    assert isinstance(scenario_commands, Commands)
+    run = scenario_commands.add_parser(
+        "run", help="run scenario files (or every *.toml in a directory)")
     run.add_argument("paths", nargs="+", metavar="PATH")
     run.add_argument(
         "--host", choices=["builtin"], default="builtin",
@@ -52,10 +58,20 @@ def main(argv: list[str]) -> int:
         "OUTDIR/index.html linking them with their verdicts; each run is traced to "
         "OUTDIR/<file name>.trace.jsonl.gz unless --trace says where (needs fake-marlin[report])",
     )
-    fuzz = _add_fuzz_parser(commands)
-    args = parser.parse_args(argv)
-    if args.command == "fuzz":
-        return fuzz_main(args, fuzz)
+    run.set_defaults(run=run_scenarios)
+    fuzz = _add_fuzz_parser(scenario_commands)
+    fuzz.set_defaults(run=lambda args: fuzz_main(args, fuzz))
+
+
+def main(argv: list[str]) -> int:
+    """`fake-marlin scenario ARGV...`."""
+    from fake_marlin.emulator.cli.main import main
+
+    return main(["scenario", *argv])
+
+
+def run_scenarios(args: argparse.Namespace) -> int:
+    """`fake-marlin scenario run`."""
     from fake_marlin.emulator.scenario.definition import ScenarioError, load
     from fake_marlin.emulator.scenario.run import report, run_scenario
     from fake_marlin.emulator.trace.writer import TraceError
@@ -124,7 +140,7 @@ def _report_problem(outdir: Path) -> str | None:
 
 
 
-def _add_fuzz_parser(commands) -> argparse.ArgumentParser:
+def _add_fuzz_parser(commands: Commands) -> argparse.ArgumentParser:
     fuzz = commands.add_parser(
         "fuzz", help="run random fault mixes with the built-in host; write the failing ones out",
         description="Generate RUNS random fault mixes per protocol (seeded: the same seed gives "
@@ -148,7 +164,8 @@ def _add_fuzz_parser(commands) -> argparse.ArgumentParser:
     return fuzz
 
 
-def fuzz_main(args, parser) -> int:
+def fuzz_main(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
+    """`fake-marlin scenario fuzz`; `parser` (fuzz's) reports what is wrong with `args`."""
     from fake_marlin.emulator.scenario.campaign import default_jobs, run_campaign
 
     for name, least in (("runs", 1), ("seed", 0), ("jobs", 1), ("moves", 1)):

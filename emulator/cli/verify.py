@@ -11,6 +11,8 @@ import sys
 from collections import Counter
 from typing import TYPE_CHECKING
 
+from fake_marlin.emulator.cli.parsing import Commands
+
 # The checking code is imported where it runs: building the parser, which every `fake-marlin`
 # does, imports none of it.
 if TYPE_CHECKING:
@@ -23,9 +25,10 @@ class InputError(Exception):
     pass
 
 
-def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
-        prog=PROG,
+def configure(commands: Commands) -> None:
+    """Add `verify` to fake-marlin's commands (main.py)."""
+    parser = commands.add_parser(
+        "verify", help="check that a --journal ran its G-code job exactly once",
         description="Check a --journal against the G-code job it should have run: report job "
         "commands that are missing, duplicated or reordered, and extra commands the host sent "
         "on its own (polls, line numbering: not failures unless --strict).",
@@ -42,7 +45,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--limit", type=_count, default=20, metavar="N",
         help="problems to list (default 20; 0 lists all)",
     )
-    return parser
+    parser.set_defaults(run=run)
 
 
 def _count(text: str) -> int:
@@ -66,7 +69,13 @@ def read_text(path: str) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+    """`fake-marlin verify ARGV...`."""
+    from fake_marlin.emulator.cli.main import main
+
+    return main(["verify", *(sys.argv[1:] if argv is None else argv)])
+
+
+def run(args: argparse.Namespace) -> int:
     from fake_marlin.emulator.journal.verify import job_commands, verify
 
     try:
