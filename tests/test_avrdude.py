@@ -1,10 +1,10 @@
 """avrdude flashes the printer through its Arduino Mega bootloader, over a real pty.
 
 The real `fake-marlin` program with its defaults (`--protocol auto`: the bootloader answers a
-connection whose first byte is an STK500v2 message) and Debian's avrdude, installed by the test
-setup where missing (tests/hosts/apt.py). avrdude is run as the Arduino IDE runs it for a Mega:
-`-c wiring -p m2560 -b 115200 -D`: the Mega's bootloader refuses CHIP_ERASE, and without -D
-avrdude stops there, on the board as here.
+connection whose first byte is an STK500v2 message) and Debian's avrdude, which `python -m
+tests.hosts.install` installs where missing (tests/hosts/apt.py; without it the tests skip).
+avrdude is run as the Arduino IDE runs it for a Mega: `-c wiring -p m2560 -b 115200 -D`: the
+Mega's bootloader refuses CHIP_ERASE, and without -D avrdude stops there, on the board as here.
 """
 
 import random
@@ -16,7 +16,8 @@ import serial
 
 from fake_marlin.emulator.protocols.avr_memory import FLASH_SIZE, PAGE_SIZE
 from fake_marlin.emulator.protocols.stk500 import encode_message
-from tests.hosts.apt import AptInstallFailed, AptUnavailable, ensure_apt_package
+from tests.hosts import apt
+from tests.hosts.install import not_installed
 
 pytestmark = pytest.mark.e2e
 IMAGE_SIZE = 12 * 1024
@@ -25,12 +26,10 @@ AVRDUDE_TIMEOUT = 120
 
 @pytest.fixture(scope="module")
 def avrdude() -> str:
-    try:
-        return ensure_apt_package("avrdude", binary="avrdude")
-    except AptUnavailable as reason:
-        pytest.skip(f"avrdude is needed: {reason}")
-    except AptInstallFailed as failure:
-        pytest.fail(f"could not install avrdude: {failure}")
+    path = apt.find(apt.AVRDUDE)
+    if path is None:
+        pytest.skip(not_installed(apt.AVRDUDE.label))
+    return path
 
 
 def image(seed: int, size: int = IMAGE_SIZE) -> bytes:

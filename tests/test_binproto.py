@@ -5,7 +5,8 @@ compressed, also through bit errors on the way to the printer, and the printer s
 again afterwards.
 
 binproto2 runs in a venv of its own (tests/hosts/venvs.py), installed `--no-deps` beside
-heatshrink2 and pyserial (it also asks for `heatshrink`, which it only falls back from).
+heatshrink2 and pyserial (it also asks for `heatshrink`, which it only falls back from) by
+`python -m tests.hosts.install`; without it the tests skip and name that command.
 """
 
 import json
@@ -25,8 +26,8 @@ BIT_ERRORS = "to-printer:bit-errors=1e-4"  # one packet in a dozen damaged
 
 
 @pytest.fixture(scope="session")
-def binproto_python(request):
-    return host_python(request, venvs.BINPROTO)
+def binproto_python():
+    return host_python(venvs.BINPROTO)
 
 
 def write_job(path: Path) -> bytes:

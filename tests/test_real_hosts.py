@@ -1,8 +1,10 @@
 """Real host software against `fake-marlin --protocol marlin`: Printrun's printcore, OctoPrint's
 serial layer and pyserial's miniterm, unchanged, over the emulator's pty.
 
-The hosts run in their own cached venvs (tests/hosts/venvs.py), built on first use; if they
-cannot be installed these tests fail rather than skip, since proving the hosts work is the point.
+The hosts run in their own cached venvs (tests/hosts/venvs.py), which `python -m
+tests.hosts.install` builds (the README's test command runs it before pytest); where a venv is
+missing its tests skip and name that command, and the install step itself fails loudly when a
+host cannot be installed.
 FAKE_MARLIN_EMULATOR (a command line) runs them against another printer program instead: it is
 the `program` of fake_marlin.testing, so it takes fake-marlin's options.
 """
@@ -21,6 +23,7 @@ import pytest
 
 from fake_marlin.wire.gcode import strip_comment
 from tests.hosts import venvs
+from tests.hosts.install import not_installed
 
 pytestmark = pytest.mark.e2e
 HOSTS = Path(__file__).parent / "hosts"
@@ -36,31 +39,22 @@ OCTOPRINT_HANDSHAKE = {"M110 N0", "M115", "M21", "M20", "M20 L T", "M155 S2", "M
 OCTOPRINT_ANY_TIME = {"M105", "M113 S2"}
 
 
-def host_python(request, host: venvs.Host) -> Path:
-    try:
-        venv = venvs.ensure(host)
-    except venvs.VenvError as error:
-        problem = str(error)
-    else:
-        problem = None
-    if problem:
-        pytest.fail(f"cannot install {host.name} {host.version} to test against it: {problem}", pytrace=False)
-    plugins = request.config.pluginmanager
-    reporter, capture = plugins.get_plugin("terminalreporter"), plugins.get_plugin("capturemanager")
-    if venv.built_now and reporter is not None and capture is not None:
-        with capture.global_and_fixture_disabled():  # shown even when the test passes
-            reporter.write_line(f"installed {host.name} {host.version} in {venv.install_seconds} s: {venv.path}")
+def host_python(host: venvs.Host) -> Path:
+    """The host venv's interpreter; the test skips if the install step has not built it."""
+    venv = venvs.find(host)
+    if venv is None:
+        pytest.skip(not_installed(host.label))
     return venv.python
 
 
 @pytest.fixture(scope="session")
-def printrun_python(request):
-    return host_python(request, venvs.PRINTRUN)
+def printrun_python():
+    return host_python(venvs.PRINTRUN)
 
 
 @pytest.fixture(scope="session")
-def octoprint_python(request):
-    return host_python(request, venvs.OCTOPRINT)
+def octoprint_python():
+    return host_python(venvs.OCTOPRINT)
 
 
 def run_driver(python: Path, driver: str, port: Path, gcode: Path) -> tuple[int, dict]:

@@ -3,9 +3,10 @@ playwright-core (tests/hosts/report_page_driver.js), as a person would open it f
 
 It must load with no console errors and fetch nothing, show its figure, and filter the wire
 log as one types in the search box; ticking kinds and clicking a record's time must work too.
-Chromium comes from Debian's packages (tests/hosts/apt.py installs it where missing) and
-playwright-core from npm into the cache outside the checkout (tests/hosts/npm.py); no browser
-is downloaded. Where apt cannot install, the tests skip; a failed install fails them.
+Chromium comes from Debian's packages (tests/hosts/apt.py) and playwright-core from npm into the
+cache outside the checkout (tests/hosts/npm.py), both installed by `python -m
+tests.hosts.install`; no browser is downloaded. Where either is missing, the tests skip and
+name that command.
 """
 
 import json
@@ -17,8 +18,8 @@ from pathlib import Path
 import pytest
 
 from fake_marlin.emulator.report import read_trace
-from tests.hosts import npm
-from tests.hosts.apt import AptInstallFailed, AptUnavailable, ensure_apt_package
+from tests.hosts import apt, npm
+from tests.hosts.install import not_installed
 from tests.trace_samples import big_trace
 
 pytest.importorskip("matplotlib", reason="the report needs the `report` extra (matplotlib)")
@@ -27,28 +28,17 @@ pytestmark = pytest.mark.e2e
 ROOT = Path(__file__).resolve().parent.parent
 FAKE_MARLIN = Path(sys.executable).parent / "fake-marlin"
 DRIVER = Path(__file__).parent / "hosts" / "report_page_driver.js"
-PLAYWRIGHT = npm.Package("playwright-core", "1.65.1", (
-    "const v = require('playwright-core/package.json').version;"
-    "if (v !== '1.65.1') throw new Error('playwright-core ' + v + ' installed');"
-))
 DRIVER_TIMEOUT = 180
 
 
 @pytest.fixture(scope="session")
 def browser() -> tuple[npm.Install, str]:
-    problem = None
-    try:
-        chromium = ensure_apt_package("chromium", "chromium")
-    except AptUnavailable as reason:
-        pytest.skip(f"Chromium is needed: {reason}")
-    except AptInstallFailed as failure:
-        problem = f"cannot install Chromium: {failure}"
-    try:
-        install = npm.ensure(PLAYWRIGHT)
-    except npm.NpmError as error:
-        problem = f"cannot install playwright-core {PLAYWRIGHT.version}: {error}"
-    if problem:
-        pytest.fail(problem, pytrace=False)
+    chromium = apt.find(apt.CHROMIUM)
+    if chromium is None:
+        pytest.skip(not_installed(apt.CHROMIUM.label))
+    install = npm.find(npm.PLAYWRIGHT)
+    if install is None:
+        pytest.skip(not_installed(npm.PLAYWRIGHT.label))
     return install, chromium
 
 

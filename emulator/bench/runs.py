@@ -2,9 +2,9 @@
 process, a host program streaming a job to it in another, and what that took.
 
 The hosts: ours (fake_marlin.emulator.bench.stream, with this interpreter), and OctoPrint's comm
-layer and printcore when their venvs exist, found where the test suite builds them
-(tests/hosts/venvs.py; the path logic is copied, since an installed bench has no tests/). A
-missing venv makes its host "not installed", never an error.
+layer and printcore when their venvs exist, found where the test suite's install step (`python
+-m tests.hosts.install`, tests/hosts/venvs.py) builds them; the path logic is copied, since an
+installed bench has no tests/. A missing venv makes its host "not installed", never an error.
 """
 
 import json
@@ -23,8 +23,8 @@ VENV_MARKER = "fake-marlin-venv.json"  # written last by tests/hosts/venvs.py: t
 
 
 def venv_cache() -> Path:
-    """Where the real hosts' venvs are cached, for the test suite (which builds them) and
-    the bench (which uses them)."""
+    """Where the real hosts' venvs are cached, for the test suite's install step (which builds
+    them), the tests and the bench (which use them)."""
     default = Path.home() / ".cache" / "fake-marlin" / "venvs"
     return Path(os.environ.get("FAKE_MARLIN_VENVS", default))
 
@@ -53,7 +53,7 @@ def _venv_host(key: str, label: str, venv: str, driver: str) -> Host:
     python = path / "bin" / "python"
     script = Path(__file__).with_name(driver)
     if not (path / VENV_MARKER).is_file() or not python.exists():
-        hint = "python -m tests.hosts.venvs in a checkout builds it"
+        hint = "python -m tests.hosts.install in a checkout builds it"
         return Host(key, label, None, f"not installed (no venv {path}; {hint})")
     if not script.is_file():
         return Host(key, label, None, f"not installed (no driver {script})")

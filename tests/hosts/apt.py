@@ -1,10 +1,11 @@
-"""Debian packages that tests run (avrdude), installed on demand with the machine's apt.
+"""Debian packages that tests run (avrdude, Chromium; Node.js and npm where the machine has none),
+installed with the machine's apt by `python -m tests.hosts.install`.
 
 The machines this project runs on are root with apt-get; a package that is missing is installed
-once, under a flock so that pytest processes starting together do not race for dpkg's lock, and
-apt itself keeps it installed for later runs. Where apt cannot be used at all (no apt-get, not
-root) the caller skips with AptUnavailable's reason; an install that apt tried and failed is a
-real failure (AptInstallFailed), not a skip.
+once, under a flock so that installs starting together do not race for dpkg's lock, and apt
+itself keeps it installed for later runs. The tests only look for the program on PATH (`find`).
+Where apt cannot be used at all (no apt-get, not root) the install says so (AptUnavailable);
+an install that apt tried and failed says what apt said (AptInstallFailed).
 """
 
 import fcntl
@@ -12,6 +13,7 @@ import functools
 import os
 import shutil
 import subprocess
+from dataclasses import dataclass
 from pathlib import Path
 
 LOCK = Path.home() / ".cache" / "fake-marlin" / "apt.lock"
@@ -20,12 +22,34 @@ TIMEOUT = 900  # seconds for one apt-get run: an update of the lists, then the d
 APT_GET = ("apt-get", "-y", "-q", "--no-install-recommends", "-o", "DPkg::Lock::Timeout=300")
 
 
+@dataclass(frozen=True)
+class Tool:
+    package: str  # Debian's
+    binary: str  # what it puts on PATH
+    label: str  # what a person calls it
+
+
+NODE = Tool("nodejs", "node", "Node.js")
+NPM = Tool("npm", "npm", "npm")
+AVRDUDE = Tool("avrdude", "avrdude", "avrdude")
+CHROMIUM = Tool("chromium", "chromium", "Chromium")
+
+
 class AptUnavailable(RuntimeError):
-    """apt cannot install anything here: the test that needs the package is skipped."""
+    """apt cannot install anything here (no apt-get, not root)."""
 
 
 class AptInstallFailed(RuntimeError):
-    """apt was there but the install did not work: the test fails with apt's words."""
+    """apt was there but the install did not work."""
+
+
+def find(tool: Tool) -> str | None:
+    """The tool's path if it is on PATH, else None; never installs anything."""
+    return shutil.which(tool.binary)
+
+
+def ensure(tool: Tool) -> str:
+    return ensure_apt_package(tool.package, tool.binary)
 
 
 @functools.cache

@@ -1,10 +1,11 @@
 """A directory built once and kept: the real hosts' venvs and npm installs, outside the checkout.
 
 Installing a host takes a while and a fresh clone must do it only once, so each lives in a
-directory of its own under ~/.cache/fake-marlin, named after the host and its version. A flock
-serialises pytest processes that start together. The directory is built under a temporary
-name and renamed into place only once the build (and its check) succeeded, with a marker file
-written last, so an interrupted run leaves nothing that looks usable.
+directory of its own under ~/.cache/fake-marlin, named after the host and its version.
+`python -m tests.hosts.install` builds them (`built_once`); the tests only look for them
+(`complete`). A flock serialises installs that start together. The directory is built under a
+temporary name and renamed into place only once the build (and its check) succeeded, with a
+marker file written last, so an interrupted install leaves nothing that looks usable.
 """
 
 import fcntl
@@ -31,12 +32,12 @@ def built_once(final: Path, marker: str, build: Callable[[Path], None],
                facts: dict[str, object], usable: Callable[[Path], bool]) -> Built:
     """`final`, running `build(directory)` first if no complete one is there. `usable` says
     whether a directory with its marker still works (its interpreter not gone, say)."""
-    if (cached := _complete(final, marker, usable)) is not None:
+    if (cached := complete(final, marker, usable)) is not None:
         return cached
     final.parent.mkdir(parents=True, exist_ok=True)
     with open(final.parent / f".{final.name}.lock", "w") as lock:
         fcntl.flock(lock, fcntl.LOCK_EX)
-        if (cached := _complete(final, marker, usable)) is not None:
+        if (cached := complete(final, marker, usable)) is not None:
             return cached
         for stale in final.parent.glob(f".{final.name}.build-*"):
             shutil.rmtree(stale, ignore_errors=True)
@@ -55,7 +56,9 @@ def built_once(final: Path, marker: str, build: Callable[[Path], None],
         return Built(final, seconds, True)
 
 
-def _complete(path: Path, marker: str, usable: Callable[[Path], bool]) -> Built | None:
+def complete(path: Path, marker: str, usable: Callable[[Path], bool]) -> Built | None:
+    """`path` if a build finished there (its marker written) and it still works, else None:
+    what the tests look for, without building anything."""
     try:
         facts = json.loads((path / marker).read_text())
     except (OSError, ValueError):

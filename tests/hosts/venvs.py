@@ -1,8 +1,9 @@
-"""Virtual environments for real host software, built on demand outside the checkout.
+"""Virtual environments for real host software, built outside the checkout.
 
 The hosts pin libraries (OctoPrint pins Flask, werkzeug, pydantic) that must not meet the
 project's own, and installing them takes a while, so each gets its own venv cached under
-`~/.cache/fake-marlin/venvs/<name>-<version>`: a fresh clone builds it once, later runs reuse it.
+`~/.cache/fake-marlin/venvs/<name>-<version>` (FAKE_MARLIN_VENVS moves it): `python -m
+tests.hosts.install` builds it once (`ensure`), the tests and the bench only look for it (`find`).
 """
 
 import sys
@@ -10,9 +11,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from fake_marlin.emulator.bench.runs import VENV_MARKER, venv_cache
-from tests.hosts.cache import built_once, run_step
+from tests.hosts.cache import built_once, complete, run_step
 
-CACHE = venv_cache()  # the bench looks for them there too
 MARKER = VENV_MARKER
 
 
@@ -20,15 +20,18 @@ MARKER = VENV_MARKER
 class Host:
     name: str
     version: str
+    label: str  # what a person calls it
     pip_args: tuple[str, ...]
     module: str  # imported once the install is done, to prove it works
 
 
-OCTOPRINT = Host("octoprint", "1.11", ("octoprint>=1.11,<1.12",), "octoprint.util.comm")
+OCTOPRINT = Host("octoprint", "1.11", "OctoPrint 1.11", ("octoprint>=1.11,<1.12",),
+                 "octoprint.util.comm")
 # The full Printrun install wants wxPython and dbus, which do not build here; printcore needs neither.
-PRINTRUN = Host("printrun", "2.2.0", ("--no-deps", "printrun==2.2.0", "pyserial"), "printrun.printcore")
+PRINTRUN = Host("printrun", "2.2.0", "Printrun 2.2.0 (printcore)",
+                ("--no-deps", "printrun==2.2.0", "pyserial"), "printrun.printcore")
 # Marlin's binary transfer client; it also requires `heatshrink`, which it only falls back from.
-BINPROTO = Host("binproto", "0.0.7", (
+BINPROTO = Host("binproto", "0.0.7", "binproto2 0.0.7 (marlin-binary-protocol)", (
     "--no-deps", "marlin-binary-protocol==0.0.7", "heatshrink2==0.15.0", "pyserial"), "binproto2")
 
 
@@ -47,6 +50,15 @@ class Venv:
         return self.path / "bin" / "python"
 
 
+HOSTS = (OCTOPRINT, PRINTRUN, BINPROTO)
+
+
+def find(host: Host) -> Venv | None:
+    """The host's venv if a complete one is cached, else None; never installs anything."""
+    built = complete(_path(host), MARKER, _usable)
+    return None if built is None else Venv(built.path, built.install_seconds, False)
+
+
 def ensure(host: Host) -> Venv:
     """The host's venv, building it first if no complete one is cached (tests/hosts/cache.py).
     (Console scripts in the venv keep the build directory in their shebang: run everything
@@ -59,17 +71,19 @@ def ensure(host: Host) -> Venv:
              f"pip install {' '.join(host.pip_args)}")
         _run([python, "-c", f"import {host.module}"], f"import {host.module}")
 
-    # bin/python links to the interpreter that built it: gone if that Python was removed.
-    built = built_once(CACHE / f"{host.name}-{host.version}", MARKER, build,
-                       {"pip_args": host.pip_args}, lambda path: (path / "bin" / "python").exists())
+    built = built_once(_path(host), MARKER, build, {"pip_args": host.pip_args}, _usable)
     return Venv(built.path, built.install_seconds, built.built_now)
+
+
+def _path(host: Host) -> Path:
+    return venv_cache() / f"{host.name}-{host.version}"  # where the bench looks for them too
+
+
+def _usable(path: Path) -> bool:
+    # bin/python links to the interpreter that built it: gone if that Python was removed.
+    return (path / "bin" / "python").exists()
 
 
 def _run(command: list[str], what: str) -> None:
     run_step(command, what, VenvError)
 
-
-if __name__ == "__main__":
-    for each in (PRINTRUN, OCTOPRINT):
-        venv = ensure(each)
-        print(f"{venv.path}: {'built' if venv.built_now else 'cached'}, install took {venv.install_seconds} s")
