@@ -20,11 +20,14 @@ FUZZ = Path(__file__).resolve().parent
 
 def fuzz_one(name: str, args: list[str]) -> int:
     import atheris
+    # atheris.instrument_imports itself (typeshed's partial atheris stub leaves it out of
+    # atheris/__init__.pyi, so type checkers cannot see it there).
+    from atheris.import_hook import instrument_imports
 
     # Instrument what the receivers run: the package, and tomllib for the scenario loader
     # (coverage inside the TOML parser is what leads the fuzzer to well-formed files). Nothing
     # of theirs may be imported before this, or it runs uninstrumented.
-    with atheris.instrument_imports(include=["fake_marlin", "tomllib"]):
+    with instrument_imports(include=["fake_marlin", "tomllib"]):
         from fuzz.targets import TARGETS
     if name not in TARGETS:
         print(f"no target {name!r}; the targets are: {', '.join(TARGETS)}", file=sys.stderr)

@@ -10,6 +10,9 @@ the printer answered in ASCII, binproto2's error counts (resends and timeouts) i
 in the transfer, the transfer's time) and exits 0 only if the transfer completed.
 """
 
+# binproto2 lives only in the host venv this driver runs under (tests/hosts/venvs.py), not in .venv.
+# pyright: reportMissingImports=false
+
 import argparse
 import json
 import os

@@ -7,6 +7,9 @@ temperatures, firmware info and capabilities, errors, every line sent and receiv
 print completed. Exit 0 only if it connected, printed to the end and saw no error.
 """
 
+# octoprint lives only in the host venv this driver runs under (tests/hosts/venvs.py), not in .venv.
+# pyright: reportMissingImports=false
+
 import argparse
 import json
 import logging

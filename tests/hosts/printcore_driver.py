@@ -7,6 +7,9 @@ has no acknowledgement timeout, so a line the printer never answers would hang i
 overall timeout ends the run and names the line it was stuck on.
 """
 
+# printrun lives only in the host venv this driver runs under (tests/hosts/venvs.py), not in .venv.
+# pyright: reportMissingImports=false
+
 import argparse
 import json
 import logging
