@@ -7,6 +7,9 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
+pytestmark = pytest.mark.e2e  # every test starts processes
 SCENARIOS = Path(__file__).parent.parent / "scenarios"
 ONE_PER_PROTOCOL = [SCENARIOS / name for name in (
     "um3-noisy-serial.toml", "marlin-noisy-serial.toml", "repetier-noisy-serial.toml",

@@ -91,6 +91,7 @@ class Farm:
         return stderr
 
 
+@pytest.mark.e2e
 async def test_printers_share_a_process_and_nothing_else(fake_printer_factory, tmp_path):
     job = [f"G1 X{n} F6000" for n in range(1, 41)]
     farm = fake_printer_factory(printers=3, protocol="marlin", speed=100,
@@ -115,6 +116,7 @@ async def test_printers_share_a_process_and_nothing_else(fake_printer_factory, t
     assert not any((tmp_path / f"printer-{n}").exists() for n in (1, 2, 3))  # links removed
 
 
+@pytest.mark.e2e
 async def test_a_farm_file_serves_each_printer_its_own_protocol(tmp_path):
     path = write(tmp_path, """
 [[printer]]
@@ -136,6 +138,7 @@ journal = "um-{n}.log"
     assert (tmp_path / "um-3.log").read_text() == "G28\nM105\n"
 
 
+@pytest.mark.e2e
 @pytest.mark.parametrize("args, message", [
     (["--printers", "3", "--journal", "run.log"], "--journal: with --printers, put {n} in it"),
     (["--printers", "0"], "--printers: must be a whole number from 1"),
@@ -149,6 +152,7 @@ def test_bad_farm_flags_are_refused_with_the_reason(tmp_path, args, message):
     assert "Traceback" not in result.stderr
 
 
+@pytest.mark.e2e
 def test_the_control_channel_of_one_printer_needs_no_number(tmp_path):
     farm = Farm(["--control", str(tmp_path / "control")], 1)
     try:

@@ -90,6 +90,7 @@ def test_every_generated_scenario_loads_and_keeps_the_rules(tmp_path):
                for p in fuzz.PROTOCOLS for n in range(1, 30))
 
 
+@pytest.mark.e2e
 def test_a_failing_case_written_out_fails_again_alone_with_the_same_digest(tmp_path):
     # A harsh Ultimaker case, made to fail by an expectation no run meets.
     case = next(c for c in campaign.cases("ultimaker", 3, 40, moves=40)
@@ -138,6 +139,7 @@ def test_the_cli_refuses_bad_arguments(tmp_path, capsys, args, message):
     assert message in capsys.readouterr().err
 
 
+@pytest.mark.e2e
 def test_the_cli_needs_its_arguments():
     refused = subprocess.run([FAKE_MARLIN, "scenario", "fuzz", "--protocol", "all"],
                              capture_output=True, text=True, timeout=60)
@@ -145,6 +147,7 @@ def test_the_cli_needs_its_arguments():
     assert "Traceback" not in refused.stderr
 
 
+@pytest.mark.e2e
 def test_a_short_campaign_runs_end_to_end(tmp_path):
     out = tmp_path / "out"
     ran = subprocess.run(
@@ -185,6 +188,7 @@ def test_a_short_campaign_runs_end_to_end(tmp_path):
         assert path.read_text().startswith(("# PASS: ", "# FAIL: "))
 
 
+@pytest.mark.e2e
 def test_progress_shows_on_a_terminal(tmp_path):
     controller, terminal = os.openpty()
     try:

@@ -9,6 +9,7 @@ from pathlib import Path
 
 import pytest
 
+pytestmark = pytest.mark.e2e  # every test starts processes
 ROOT = Path(__file__).resolve().parent.parent
 PARTS = ("emulator", "host", "wire")
 

@@ -236,6 +236,7 @@ def test_a_trace_with_nothing_in_it_still_makes_a_page(tmp_path):
     assert "Exactly once: not judged." in page
 
 
+@pytest.mark.e2e
 def test_the_same_trace_gives_the_same_page_in_another_process(tmp_path):
     """No date and no random ids: the bytes depend on the trace alone (the wall times are
     in the trace, so a second run's trace with other `w` differs only where they show)."""
@@ -277,6 +278,7 @@ def test_write_reports_writes_an_index(tmp_path):
 
 # -- the command line ----------------------------------------------------------------------
 
+@pytest.mark.e2e
 def test_cli_writes_the_page_and_says_where(tmp_path):
     trace = marlin_print().write(tmp_path / "print.trace.jsonl")
     done = fake_marlin("report", trace, "-o", tmp_path / "page.html")
@@ -286,6 +288,7 @@ def test_cli_writes_the_page_and_says_where(tmp_path):
     assert done.returncode == 0 and (tmp_path / "print.html").exists()
 
 
+@pytest.mark.e2e
 def test_cli_judges_a_live_trace_against_its_job(tmp_path):
     sample = marlin_print(verdict=False)
     trace = sample.write(tmp_path / "live.jsonl")
@@ -295,6 +298,7 @@ def test_cli_judges_a_live_trace_against_its_job(tmp_path):
     assert "Exactly once:</strong> each of the 64 job commands" in (tmp_path / "p.html").read_text()
 
 
+@pytest.mark.e2e
 @pytest.mark.parametrize("case", ["bad trace", "no trace", "no job", "unwritable"])
 def test_cli_problems_are_one_line_and_exit_2(tmp_path, case):
     trace = marlin_print().write(tmp_path / "t.jsonl")
@@ -311,6 +315,7 @@ def test_cli_problems_are_one_line_and_exit_2(tmp_path, case):
     assert "Traceback" not in done.stderr
 
 
+@pytest.mark.e2e
 @pytest.mark.parametrize("stand_in, reason", [
     ("raise ModuleNotFoundError(\"No module named 'matplotlib'\", name='matplotlib')",
      "which is not installed"),
@@ -368,6 +373,7 @@ def test_scenario_run_report_writes_a_page_per_scenario_and_an_index(tmp_path):
     assert "Marlin: lost oks" in (out / "marlin-lost-oks.html").read_text()
 
 
+@pytest.mark.e2e
 def test_scenario_run_report_problems_are_one_line(tmp_path):
     (tmp_path / "taken").write_text("a file")
     scenario = ROOT / "scenarios" / "marlin-lost-oks.toml"

@@ -51,6 +51,7 @@ def test_bad_scenario_files_name_the_key_and_the_problem(tmp_path, text, message
     assert str(refused.value).startswith(f"{path}: ") and message in str(refused.value)
 
 
+@pytest.mark.e2e
 def test_the_cli_runs_a_scenario_and_refuses_a_bad_one(tmp_path):
     fake_marlin = Path(sys.executable).parent / "fake-marlin"
     good = subprocess.run([fake_marlin, "scenario", "run", SCENARIOS[0]], capture_output=True, text=True, timeout=120)

@@ -83,6 +83,7 @@ def run_cli(*args: str, timeout: float = 60) -> subprocess.CompletedProcess:
                           capture_output=True, text=True, timeout=timeout)
 
 
+@pytest.mark.e2e
 def test_scenario_run_writes_a_trace_per_scenario_by_name(tmp_path):
     pattern = str(tmp_path / "{name}.jsonl")
     done = run_cli("scenario", "run", str(SCENARIOS / "marlin-lost-oks.toml"),
@@ -94,6 +95,7 @@ def test_scenario_run_writes_a_trace_per_scenario_by_name(tmp_path):
         assert records(path)[-1]["k"] == "end"
 
 
+@pytest.mark.e2e
 @pytest.mark.parametrize("args, complaint", [
     (["scenario", "run", str(SCENARIOS / "marlin-lost-oks.toml"),
       str(SCENARIOS / "um-lost-packets.toml"), "--trace", "/tmp/one.jsonl"], "{name}"),

@@ -327,6 +327,7 @@ def fake_marlin(*args) -> subprocess.CompletedProcess:
     )
 
 
+@pytest.mark.e2e
 def test_the_console_script(tmp_path):
     job = tmp_path / "job.gcode"
     job.write_text("\n".join(JOB) + "\n")
