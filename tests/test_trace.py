@@ -26,18 +26,16 @@ def records(path: Path) -> list[dict]:
     "um3-noisy-serial", "marlin-noisy-serial", "repetier-noisy-serial", "commstack-noisy-link",
     "marlin-thermal-runaway-during-print", "um-cable-unplugged",
 ])
-def test_a_traced_scenario_is_the_same_run(name, tmp_path):
+def test_a_traced_scenario_is_the_same_run(name, scenario_runs):
     """A trace written to reproduce a field bug must show the run that fails, not another."""
-    scenario = load(SCENARIOS / f"{name}.toml")
-    plain = run_scenario(scenario)
-    traced = run_scenario(scenario, str(tmp_path / "run.trace.jsonl"))
+    plain = scenario_runs.plain(SCENARIOS / f"{name}.toml")  # test_scenarios' run, if it ran
+    traced, _ = scenario_runs.traced(SCENARIOS / f"{name}.toml")
     assert traced.digest == plain.digest
     assert traced.journal == plain.journal
 
 
-def test_the_trace_of_a_noisy_ultimaker_run(tmp_path):
-    path = tmp_path / "um3.trace.jsonl.gz"
-    result = run_scenario(load(SCENARIOS / "um3-noisy-serial.toml"), str(path))
+def test_the_trace_of_a_noisy_ultimaker_run(scenario_runs):
+    result, path = scenario_runs.traced(SCENARIOS / "um3-noisy-serial.toml")
     trace = records(path)
     assert {record["k"] for record in trace} <= KINDS
     assert trace[0]["k"] == "begin" and trace[0]["version"] == 1
@@ -66,9 +64,8 @@ def test_the_trace_of_a_noisy_ultimaker_run(tmp_path):
     assert "ProtoError" in said
 
 
-def test_heaters_are_sampled_while_in_use(tmp_path):
-    path = tmp_path / "heat.trace.jsonl"
-    run_scenario(load(SCENARIOS / "marlin-thermal-runaway-during-print.toml"), str(path))
+def test_heaters_are_sampled_while_in_use(scenario_runs):
+    _, path = scenario_runs.traced(SCENARIOS / "marlin-thermal-runaway-during-print.toml")
     trace = records(path)
     samples = [r for r in trace if r["k"] == "temp" and r["h"] == "T0"]
     targets = {r["s"] for r in samples}
@@ -111,11 +108,10 @@ def test_a_trace_that_cannot_be_written_is_refused_in_one_line(args, complaint):
     assert complaint in done.stderr.strip().splitlines()[-1]  # after argparse's usage, if any
 
 
-def test_a_trace_that_fails_to_write_stops_and_the_printer_runs_on(capsys):
+def test_a_trace_that_fails_to_write_stops_and_the_printer_runs_on(capsys, scenario_runs):
     """A full disk must cost the trace, not the run."""
-    scenario = load(SCENARIOS / "marlin-lost-oks.toml")
-    plain = run_scenario(scenario)
-    broken = run_scenario(scenario, "/dev/full")
+    plain = scenario_runs.plain(SCENARIOS / "marlin-lost-oks.toml")
+    broken = run_scenario(load(SCENARIOS / "marlin-lost-oks.toml"), "/dev/full")
     assert broken.digest == plain.digest and broken.passed
     said = capsys.readouterr().err.strip().splitlines()
     assert said == ["fake-marlin: cannot write the trace /dev/full: No space left on device; "
