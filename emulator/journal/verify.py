@@ -117,10 +117,14 @@ def verify(job: Sequence[tuple[int, str]], journal: Sequence[str]) -> Verificati
     """
     # Commands are compared in one spelling (wire.gcode.canonical): a binary protocol brings
     # `G1 X10 F3000` to the printer for the job's `G1 F3000 X10.0`. Problems quote the job.
-    texts = [canonical(command) for _, command in job]
-    in_job = set(texts)
     written = {number: line.strip() for number, line in enumerate(journal, 1)}
-    ran = [(number, canonical(line)) for number, line in written.items() if line]
+    # Each text is spelled once (its numbers' shortest float32 forms are what cost): a journal
+    # mostly repeats its job's lines, and a job repeats its own.
+    spelling = {text: canonical(text)
+                for text in {command for _, command in job} | set(written.values())}
+    texts = [spelling[command] for _, command in job]
+    in_job = set(texts)
+    ran = [(number, spelling[line]) for number, line in written.items() if line]
     runs = [(number, command) for number, command in ran if command in in_job]
     found: list[tuple[tuple[float, int], Problem]] = [  # ((journal position, job index), problem)
         ((number, -1), Problem(Kind.EXTRA, written[number], None, number))
