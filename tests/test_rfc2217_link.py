@@ -112,9 +112,10 @@ async def test_a_second_client_is_refused_and_ours_says_so(fast_clock):
             second = await trio.open_tcp_stream("127.0.0.1", printer.link.port)
             assert await read_all(second) == REFUSAL
             await second.aclose()
-            # pyserial waits 3 s for the negotiation that never comes.
+            # pyserial waits for the negotiation that never comes: 3 s, unless the URL's
+            # `timeout` says otherwise.
             with pytest.raises(PortError, match="no RFC 2217 answer .*another host already"):
-                async with open_printer(printer.link.path, protocol="marlin"):
+                async with open_printer(f"{printer.link.path}?timeout=0.5", protocol="marlin"):
                     pass
             await host.print_commands(JOB[:10])
         assert printer.journal == JOB[:10]
