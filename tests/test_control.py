@@ -7,6 +7,7 @@ import trio
 
 from fake_marlin.emulator.control.client import ControlClient, ControlRequestError
 from fake_marlin.emulator.control.server import Controller, serve_control
+from fake_marlin.emulator.server.clock import ScaledClock
 from fake_marlin.emulator.server.lifecycle import ServerConfig
 from tests.conftest import running_printer
 from tests.terminal import Terminal
@@ -34,6 +35,14 @@ def run_in_trio(terminal, coroutine, *args):
     return trio.from_thread.run(coroutine, *args)
 
 
+@pytest.fixture
+def fast_clock():
+    """Simulated time 20 times faster than real time, as `fake-marlin --speed 20`: the quiet
+    spells the terminal waits for take a twentieth of their seconds. (Not where a test reads a
+    heater right after setting it: it cools in the real milliseconds between, 20 times as far.)"""
+    return ScaledClock(20)
+
+
 async def test_state_temperature_and_halting_from_outside(tmp_path):
     def script(client, terminal):
         state = client.state()
@@ -54,7 +63,7 @@ async def test_state_temperature_and_halting_from_outside(tmp_path):
     assert state["halted"] is True
 
 
-async def test_link_faults_injected_live_hit_the_next_unit(tmp_path):
+async def test_link_faults_injected_live_hit_the_next_unit(tmp_path, fast_clock):
     def script(client, terminal):
         client.inject(kind="drop", direction="to-host", pattern="^ok")
         run_in_trio(terminal, terminal.send, "M114")
@@ -64,7 +73,7 @@ async def test_link_faults_injected_live_hit_the_next_unit(tmp_path):
     assert lines == ["X:0.00 Y:0.00 Z:0.00 E:0.00 Count X:0 Y:0 Z:0"]  # its ok was lost
 
 
-async def test_bad_requests_are_refused_and_the_channel_stays(tmp_path):
+async def test_bad_requests_are_refused_and_the_channel_stays(tmp_path, fast_clock):
     def script(client, terminal):
         errors = []
         for op, fields in [("melt", {}), ("set_temperature", {"heater": "T7", "temperature": 1}),
