@@ -54,7 +54,7 @@ class TraceBuilder:
     def write(self, path: Path) -> Path:
         data = self.text().encode("utf-8")
         if path.name.endswith(".gz"):
-            data = gzip.compress(data, mtime=0)
+            data = gzip.compress(data, compresslevel=1, mtime=0)  # read back, not kept
         path.write_bytes(data)
         return path
 
