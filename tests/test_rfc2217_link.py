@@ -14,10 +14,14 @@ from fake_marlin.host import open_printer
 from fake_marlin.host.errors import PortError
 from tests.test_tcp_link import JOB, fast_clock, read_all, serving, wait_for  # noqa: F401
 
-# pyserial 3.5 names its reader thread the old way.
-pytestmark = pytest.mark.filterwarnings(
-    r"ignore:set(Daemon|Name)\(\) is deprecated:DeprecationWarning"
-)
+pytestmark = [
+    # End to end: pyserial's own RFC 2217 client, the one hosts open rfc2217:// URLs with, over
+    # real loopback sockets, on real time (it polls in 50 ms steps; an open and a close take
+    # about 0.35 s each).
+    pytest.mark.e2e,
+    # pyserial 3.5 names its reader thread the old way.
+    pytest.mark.filterwarnings(r"ignore:set(Daemon|Name)\(\) is deprecated:DeprecationWarning"),
+]
 
 
 def open_serial(url: str, baudrate: int) -> serial.SerialBase:
