@@ -250,6 +250,9 @@ def test_the_same_trace_gives_the_same_page_in_another_process(tmp_path):
     assert pages[0] == pages[1]
 
 
+# e2e for its time alone: a trace at real size, whose 100,000 records take 2.5 s to make, read
+# and draw.
+@pytest.mark.e2e
 def test_a_big_trace_makes_a_page_of_a_few_megabytes(tmp_path):
     trace = read_trace(big_trace(100_000).write(tmp_path / "big.jsonl.gz"))
     page = render_report(trace)

@@ -12,13 +12,26 @@ from fake_marlin.emulator.scenario.run import report, run_scenario
 SHIPPED = Path(__file__).parent.parent / "scenarios"
 # Campaign failures, once fixed, stay as scenarios of their own (scenarios/regressions/).
 SCENARIOS = sorted(SHIPPED.glob("*.toml")) + sorted(SHIPPED.glob("regressions/*.toml"))
+# Long simulated runs, e2e for their time alone: about a second each here, where most take a
+# tenth or two (latency on every byte of a 300-move print; the campaign's two heaviest cases,
+# 15 minutes simulated through a dozen faults, where commstack-2027-272 stays as their kind).
+SLOW = {"um-usb-latency-30ms", "marlin-usb-latency-30ms", "regressions/commstack-2027-479",
+        "regressions/commstack-2030-880"}
+
+
+def name(path: Path) -> str:
+    return str(path.relative_to(SHIPPED).with_suffix(""))
 
 
 def test_at_least_twelve_scenarios_ship():
     assert len(SCENARIOS) >= 12
+    assert SLOW <= {name(path) for path in SCENARIOS}
 
 
-@pytest.mark.parametrize("path", SCENARIOS, ids=[str(p.relative_to(SHIPPED).with_suffix("")) for p in SCENARIOS])
+@pytest.mark.parametrize("path", [
+    pytest.param(path, id=name(path), marks=[pytest.mark.e2e] if name(path) in SLOW else [])
+    for path in SCENARIOS
+])
 def test_shipped_scenario(path, scenario_runs):
     scenario = load(path)
     assert scenario.expect != type(scenario.expect)(), "a scenario must expect something"

@@ -299,6 +299,8 @@ def slicer_job(lines: int) -> list[str]:
             return job[:lines - 2] + ["M400", "M84"]
 
 
+# e2e for its time alone: a job at real size, whose 100,000 lines take 3 s to spell one way.
+@pytest.mark.e2e
 def test_a_100k_line_job_with_host_polls_and_three_faults():
     job = job_commands("\n".join(slicer_job(100_000)))
     run = [command for _, command in job]
