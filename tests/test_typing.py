@@ -33,7 +33,7 @@ def unresolved(diagnostic: dict) -> bool:
 
 
 # End-to-end for its time alone: pyright keeps no cache between runs, so each reads the whole
-# checkout and what it imports again (40 s on two cores), which no fast loop can afford.
+# checkout and what it imports again (16 s on this idle 2-core machine, 40 s loaded).
 @pytest.mark.e2e
 def test_pyright_resolves_every_import() -> None:
     """pyright (npm's, basic mode, as [tool.pyright] in pyproject.toml sets it up: the checkout
