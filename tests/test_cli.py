@@ -7,6 +7,7 @@ import sys
 from pathlib import Path
 
 import pytest
+import trio
 
 from fake_marlin import __version__
 from fake_marlin.emulator.bench import cli as bench_cli
@@ -15,6 +16,7 @@ from fake_marlin.emulator.cli import scenario as scenario_cli
 from fake_marlin.emulator.cli import verify as verify_cli
 from fake_marlin.emulator.cli.links import Address
 from fake_marlin.emulator.cli.main import build_parser, main
+from fake_marlin.emulator.link.direct_wait import WAITS_VARIABLE, waits_in_use
 
 BIN = Path(sys.executable).parent
 COMMANDS = {
@@ -71,8 +73,15 @@ def test_each_command_has_its_own_help(capsys, command, own, flag):
     assert "--printers" not in out and "run printers" not in out  # none of the printer's
 
 
-def test_the_version_is_as_it_was(capsys):
-    assert run(capsys, "--version") == (0, f"fake-marlin {__version__}\n", "")
+def test_the_version_says_which_waits_are_in_use(capsys, monkeypatch):
+    monkeypatch.setenv(WAITS_VARIABLE, "trio")
+    waits_in_use.cache_clear()
+    try:
+        assert run(capsys, "--version") == (
+            0, f"fake-marlin {__version__}\ntrio {trio.__version__}: trio's own waits "
+            f"({WAITS_VARIABLE}=trio)\n", "")
+    finally:
+        waits_in_use.cache_clear()
 
 
 def test_without_a_command_the_parser_reads_the_printer_options():

@@ -17,6 +17,21 @@ from fake_marlin.emulator.cli.parsing import CommandParser, Commands
 PROG = "fake-marlin"
 
 
+class _Version(argparse.Action):
+    """`--version`: the version, and which waits the printer's links use (link/direct_wait.py:
+    direct ones only on the trio releases verified), asked only when it is printed."""
+
+    def __init__(self, option_strings: list[str], dest: str = argparse.SUPPRESS,
+                 default: str = argparse.SUPPRESS, help: str | None = None) -> None:
+        super().__init__(option_strings, dest, nargs=0, default=default, help=help)
+
+    def __call__(self, parser, namespace, values, option_string=None) -> None:
+        from fake_marlin.emulator.link.direct_wait import waits_in_use
+
+        print(f"{parser.prog} {__version__}\n{waits_in_use()[1]}")
+        parser.exit()
+
+
 def build_parser() -> CommandParser:
     parser = CommandParser(
         prog=PROG, add_help=False,
@@ -33,7 +48,8 @@ def build_parser() -> CommandParser:
         configure(commands)
     options = parser.add_argument_group("options")
     options.add_argument("-h", "--help", action="help", help="show this help message and exit")
-    options.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
+    options.add_argument("--version", action=_Version,
+                         help="show the version, and which waits for the line are in use")
     printers.add_arguments(parser.add_argument_group("printer options (without a command)"))
     return parser
 
