@@ -6,7 +6,6 @@ with the file, the key and the problem, never as a traceback.
 
 import dataclasses
 import os
-import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -14,6 +13,7 @@ from fake_marlin.emulator.faults.layer import RATE_KINDS, FaultConfig, with_rate
 from fake_marlin.emulator.faults.rules import LINK_KINDS, FaultKind, FaultRule, Trigger
 from fake_marlin.emulator.link.conditions import LinkConditions
 from fake_marlin.emulator.server.lifecycle import ServerConfig
+from fake_marlin.emulator import tables
 
 DIRECTIONS = ("to-printer", "to-host")
 PROTOCOLS = ("auto", "marlin", "ultimaker", "repetier", "commstack")
@@ -22,8 +22,17 @@ OUTCOMES = ("completed", "failed")
 TRIGGER_KEYS = ("nth", "every", "at", "pattern", "probability")
 
 
-class ScenarioError(Exception):
+class ScenarioError(tables.TableError):
     """A scenario file that cannot be used; the message names the file, key and problem."""
+
+
+class _Reader(tables.TableReader):
+    error = ScenarioError
+
+
+def read_toml(path: Path) -> dict:
+    """A TOML file's tables, or ScenarioError saying why it cannot be read."""
+    return tables.read_toml(path, ScenarioError)
 
 
 @dataclass(frozen=True)
@@ -90,57 +99,6 @@ class Scenario:
     @property
     def host_protocol(self) -> str:
         return self.host.protocol or self.printer.protocol
-
-
-class _Reader:
-    """Typed access to one table of the file, with errors that say where."""
-
-    def __init__(self, path: Path | str, where: str, table: dict) -> None:
-        self.path, self.where, self.table = path, where, table
-        self._used: set[str] = set()
-
-    def fail(self, key: str, problem: str):
-        raise ScenarioError(f"{self.path}: {self.where}{key}: {problem}".replace(": : ", ": "))
-
-    def get(self, key: str, kinds, default=None, choices=None, minimum=None, maximum=None):
-        self._used.add(key)
-        if key not in self.table:
-            return default
-        value = self.table[key]
-        kinds = kinds if isinstance(kinds, tuple) else (kinds,)
-        if isinstance(value, bool) and bool not in kinds or not isinstance(value, kinds):
-            names = " or ".join(kind.__name__.replace("str", "a string").replace("float", "a number")
-                                .replace("int", "a whole number").replace("bool", "true or false")
-                                .replace("list", "a list") for kind in kinds)
-            self.fail(key, f"must be {names}, not {value!r}")
-        if choices is not None and value not in choices:
-            self.fail(key, f"must be one of {', '.join(map(repr, choices))}, not {value!r}")
-        if minimum is not None and value < minimum:
-            self.fail(key, f"must be at least {minimum}, not {value!r}")
-        if maximum is not None and value > maximum:
-            self.fail(key, f"must be at most {maximum}, not {value!r}")
-        return value
-
-    def table_at(self, key: str) -> "_Reader":
-        value = self.get(key, dict, {})
-        return _Reader(self.path, f"[{key}] ", value)
-
-    def finish(self) -> None:
-        unknown = sorted(set(self.table) - self._used)
-        if unknown:
-            self.fail(unknown[0], "is not a key this table knows")
-
-
-def read_toml(path: Path) -> dict:
-    """A TOML file's tables, or ScenarioError saying why it cannot be read."""
-    try:
-        return tomllib.loads(path.read_text(encoding="utf-8"))
-    except OSError as error:
-        raise ScenarioError(f"{path}: cannot read: {error.strerror}") from None
-    except UnicodeDecodeError:
-        raise ScenarioError(f"{path}: not UTF-8 text") from None
-    except tomllib.TOMLDecodeError as error:
-        raise ScenarioError(f"{path}: not valid TOML: {error}") from None
 
 
 def load(path: str | os.PathLike[str]) -> Scenario:
