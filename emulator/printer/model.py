@@ -11,7 +11,7 @@ from collections.abc import Generator
 from dataclasses import dataclass
 from pathlib import Path
 
-from fake_marlin.emulator.printer import firmware, heating, motion, sdcard
+from fake_marlin.emulator.printer import heating, motion, sdcard, system
 from fake_marlin.emulator.printer.gcode import Command, PlainMove, parse
 from fake_marlin.emulator.printer.motion import Limits, MotionState
 from fake_marlin.emulator.printer.planner import MAX_MOVES, Planner
@@ -89,7 +89,7 @@ class AutoReports:
     sd_status: float = 0.0  # M27 S
 
 
-HANDLERS = {**motion.HANDLERS, **heating.HANDLERS, **sdcard.HANDLERS, **firmware.HANDLERS}
+HANDLERS = {**motion.HANDLERS, **heating.HANDLERS, **sdcard.HANDLERS, **system.HANDLERS}
 # Commands that report temperatures themselves while they wait, so no `busy:` lines.
 SELF_REPORTING = frozenset({"M109", "M190"})
 

@@ -1,4 +1,4 @@
-"""Firmware-level G-codes: identity (M115), messages (M117/M118), debug, halt and host prompts."""
+"""System G-codes: identity (M115), messages (M117/M118), debug, halt and host prompts."""
 
 from fake_marlin.emulator.printer.gcode import Command
 from fake_marlin.emulator.printer.steps import reply
