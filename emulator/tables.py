@@ -3,6 +3,7 @@ reported with the file, the key and the problem, never as a traceback."""
 
 import tomllib
 from pathlib import Path
+from typing import Self
 
 
 class TableError(Exception):
@@ -40,7 +41,7 @@ class TableReader:
             self.fail(key, f"must be at most {maximum}, not {value!r}")
         return value
 
-    def table_at(self, key: str) -> "TableReader":
+    def table_at(self, key: str) -> Self:
         value = self.get(key, dict, {})
         return type(self)(self.path, f"[{key}] ", value)
 

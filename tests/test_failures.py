@@ -3,10 +3,12 @@
 import pytest
 
 from fake_marlin.emulator.faults.rules import FaultKind, FaultRule, Trigger, printer_failure
+from fake_marlin.emulator.firmware import Firmware
 from fake_marlin.emulator.printer import failures
 from fake_marlin.emulator.printer.model import Printer, PrinterConfig
 
 ONCE = Trigger(nth=1)
+MARLIN = Firmware.make().words  # what the model states, in Marlin's words
 
 
 @pytest.mark.parametrize(
@@ -19,15 +21,15 @@ ONCE = Trigger(nth=1)
 )
 def test_thermal_faults_kill_with_marlins_words(kind, heater, first):
     printer = Printer(PrinterConfig(extruders=2))
-    lines = failures.apply(printer, printer_failure(FaultRule(kind, ONCE, heater=heater)), 0.0)
-    assert lines[:2] == (first, "Error:Printer halted. kill() called!") and printer.halted
+    lines = MARLIN.lines(failures.apply(printer, printer_failure(FaultRule(kind, ONCE, heater=heater)), 0.0))
+    assert tuple(lines[:2]) == (first, "Error:Printer halted. kill() called!") and printer.halted
     assert failures.apply(printer, printer_failure(FaultRule(kind, ONCE)), 1.0) == ()  # dead already
 
 
 def test_a_firmware_error_line_does_not_halt():
     printer = Printer()
     rule = FaultRule(FaultKind.FIRMWARE_ERROR, ONCE, text="Z probe out of range")
-    assert failures.apply(printer, printer_failure(rule), 0.0) == ("Error:Z probe out of range",)
+    assert MARLIN.lines(failures.apply(printer, printer_failure(rule), 0.0)) == ["Error:Z probe out of range"]
     assert not printer.halted
 
 
@@ -38,7 +40,7 @@ def test_pulling_the_sd_card_stops_its_print(tmp_path):
     list(printer.execute("M24", 0.0))
     assert printer.sd.printing
     sd_removed = printer_failure(FaultRule(FaultKind.SD_REMOVED, ONCE))
-    assert failures.apply(printer, sd_removed, 0.0) == ("echo:SD card released",)
+    assert MARLIN.lines(failures.apply(printer, sd_removed, 0.0)) == ["echo:SD card released"]
     assert not printer.sd.printing and not printer.sd.mounted
 
 

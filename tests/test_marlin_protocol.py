@@ -52,17 +52,17 @@ def test_curas_form_without_a_space_after_the_number():
 
 
 @pytest.mark.parametrize(
-    "wire, error",
+    "wire, error, words",
     [
-        (numbered(5, "G28"), LineError.LINE_NUMBER),
-        (b"N1 G28*19\n", LineError.CHECKSUM),
-        (b"N1 G28\n", LineError.NO_CHECKSUM),
+        (numbered(5, "G28"), LineError.LINE_NUMBER, "Line Number is not Last Line Number+1"),
+        (b"N1 G28*19\n", LineError.CHECKSUM, "checksum mismatch"),
+        (b"N1 G28\n", LineError.NO_CHECKSUM, "No Checksum with line number"),
     ],
 )
-def test_line_errors_say_error_resend_and_ok_in_one_write(wire, error):
+def test_line_errors_say_error_resend_and_ok_in_one_write(wire, error, words):
     protocol = MarlinProtocol()
     assert feed(protocol, wire) == [LineRejected(error, 1)]
-    assert protocol.data_to_send() == f"Error:{error.value}0\nResend: 1\nok\n".encode()
+    assert protocol.data_to_send() == f"Error:{words}, Last Line: 0\nResend: 1\nok\n".encode()
 
 
 def test_an_error_discards_the_rest_of_what_arrived():

@@ -16,11 +16,13 @@ PARTS = ("emulator", "host", "wire")
 
 def package_files() -> set[str]:
     """Every file of the package as it should be installed: fake_marlin's own, and those of
-    the top-level folders its symlinks stand for, each under fake_marlin/ once."""
+    the top-level folders its symlinks stand for (their modules and the firmware profiles),
+    each under fake_marlin/ once."""
     files = {f"fake_marlin/{p.name}" for p in (ROOT / "fake_marlin").iterdir() if p.is_file()}
     for part in PARTS:
         files |= {f"fake_marlin/{p.relative_to(ROOT)}" for p in (ROOT / part).rglob("*.py")}
-    return files
+    profiles = ROOT / "emulator" / "firmware" / "profiles"
+    return files | {f"fake_marlin/{p.relative_to(ROOT)}" for p in profiles.glob("*.toml")}
 
 
 @pytest.fixture(scope="module")
@@ -102,8 +104,9 @@ def test_the_sdist_holds_each_file_once_under_the_import_root(tmp_path: Path) ->
         members = archive.getmembers()
     assert not [m.name for m in members if m.issym() or m.islnk()]  # files, not links
     names = [m.name.split("/", 1)[1] for m in members if m.isfile()]
-    python = sorted(name for name in names if name.endswith(".py") or name.endswith("py.typed"))
-    assert python == sorted(package_files())
+    package = sorted(name for name in names if name.startswith("fake_marlin/")
+                     and not name.startswith("fake_marlin.egg-info/"))
+    assert package == sorted(package_files())
     assert {"pyproject.toml", "README.md", "LICENSE", "CHANGELOG.md"} <= set(names)
 
 

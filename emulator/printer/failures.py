@@ -1,11 +1,13 @@
 """What goes wrong inside a printer, and what the firmware says when it does.
 
-The messages are Marlin 2.1's: `_temp_error()` prints the reason and the heater, then kill()
-halts the printer until it is reset.
+As Marlin 2.1's `_temp_error()`: the reason and the heater, then kill() halts the printer
+until it is reset; a firmware's profile says each in its words.
 """
 
 from dataclasses import dataclass
 from enum import Enum
+
+from fake_marlin.emulator.printer.statements import Statement, state
 
 
 class FailureKind(Enum):
@@ -31,9 +33,9 @@ class Failure:
 
 
 _THERMAL_REASONS = {
-    FailureKind.THERMAL_RUNAWAY: "Thermal Runaway",
-    FailureKind.MINTEMP: "MINTEMP triggered",
-    FailureKind.MAXTEMP: "MAXTEMP triggered",
+    FailureKind.THERMAL_RUNAWAY: "thermal_runaway",
+    FailureKind.MINTEMP: "mintemp",
+    FailureKind.MAXTEMP: "maxtemp",
 }
 
 
@@ -51,12 +53,12 @@ def heater(printer, name: str):
     return printer.bed if name.upper().startswith("B") else printer.hotends[_hotend_index(printer, name)]
 
 
-def thermal_error(printer, reason: str, heater_name: str, now: float) -> tuple[str, ...]:
-    first = f"Error:{reason}, system stopped! Heater_ID: {heater_id(printer, heater_name)}"
-    return printer.kill(first, now)
+def thermal_error(printer, reason: str, heater_name: str, now: float) -> tuple[Statement, ...]:
+    """`reason` is the statement's key: thermal_runaway, mintemp, maxtemp, heating_failed."""
+    return printer.kill(state(reason, heater=heater_id(printer, heater_name)), now)
 
 
-def apply(printer, failure: Failure, now: float) -> tuple[str, ...]:
+def apply(printer, failure: Failure, now: float) -> tuple[Statement, ...]:
     """Make the printer fail as `failure` says; returns the lines the firmware prints."""
     if printer.halted:
         return ()
@@ -64,7 +66,7 @@ def apply(printer, failure: Failure, now: float) -> tuple[str, ...]:
     if kind in _THERMAL_REASONS:
         return thermal_error(printer, _THERMAL_REASONS[kind], failure.heater, now)
     if kind is FailureKind.FIRMWARE_ERROR:
-        return (f"Error:{failure.text or 'Something went wrong'}",)
+        return (state("firmware_error", text=failure.text or "Something went wrong"),)
     if kind is FailureKind.HEATER_FAULT:
         heater(printer, failure.heater).break_down(now)
         return ()
@@ -74,5 +76,5 @@ def apply(printer, failure: Failure, now: float) -> tuple[str, ...]:
     if kind is FailureKind.SD_REMOVED:
         printer.sd.reset()
         printer.sd.mounted = False
-        return ("echo:SD card released",)
+        return (state("sd_released"),)
     raise ValueError(f"{kind.value} is not a printer fault the model handles")

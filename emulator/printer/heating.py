@@ -2,6 +2,7 @@
 
 from fake_marlin.emulator.printer.failures import thermal_error
 from fake_marlin.emulator.printer.gcode import Command
+from fake_marlin.emulator.printer.statements import Heat, Statement, state
 from fake_marlin.emulator.printer.steps import Reply, Report, Sleep, reply
 
 # Marlin's defaults: a heater must stay within TEMP_WINDOW of target for TEMP_RESIDENCY_TIME.
@@ -14,22 +15,23 @@ WATCH_TEMP_PERIOD = {"hotend": 20.0, "bed": 60.0}
 WATCH_TEMP_INCREASE = {"hotend": 2.0, "bed": 2.0}
 
 
-def temperature_report(printer, now: float, tool: int | None = None) -> str:
-    """Marlin's print_heater_states(): `T:21.00 /0.00 B:21.00 /0.00 @:0 B@:0` (and T0.. for more)."""
+def heats(printer, now: float, tool: int | None = None) -> dict[str, object]:
+    """A temperature report's values: the active hotend (or `tool`), the bed, every hotend."""
     tool = printer.active_tool if tool is None else tool
-    active = printer.hotends[tool]
-    parts = [f"T:{active.temperature(now):.2f} /{active.target:.2f}"]
-    parts.append(f"B:{printer.bed.temperature(now):.2f} /{printer.bed.target:.2f}")
-    several = len(printer.hotends) > 1
-    if several:
-        parts += [
-            f"T{index}:{heater.temperature(now):.2f} /{heater.target:.2f}"
-            for index, heater in enumerate(printer.hotends)
-        ]
-    parts.append(f"@:{active.power(now)} B@:{printer.bed.power(now)}")
-    if several:
-        parts += [f"@{index}:{heater.power(now)}" for index, heater in enumerate(printer.hotends)]
-    return " ".join(parts)
+
+    def heat(label: str, index: int, heater) -> Heat:
+        return Heat(label, index, heater.temperature(now), heater.target, heater.power(now))
+
+    hotends = tuple(heat(f"T{index}", index, heater) for index, heater in enumerate(printer.hotends))
+    return {"active": hotends[tool], "bed": heat("B", 0, printer.bed), "hotends": hotends,
+            "tool": tool}
+
+
+def temperature_report(printer, now: float, tool: int | None = None,
+                       key: str = "temperatures") -> Statement:
+    """Marlin's print_heater_states(), as a statement: `T:21.00 /0.00 B:21.00 /0.00 @:0 B@:0`
+    in Marlin's words."""
+    return Statement(key, heats(printer, now, tool))
 
 
 def _target_tool(printer, command: Command) -> int | Reply:
@@ -37,7 +39,7 @@ def _target_tool(printer, command: Command) -> int | Reply:
     tool = printer.active_tool if tool is None else int(tool)
     if 0 <= tool < len(printer.hotends):
         return tool
-    return reply(f"echo:{command.code} Invalid extruder {tool}")
+    return reply(state("invalid_extruder", code=command.code, tool=tool))
 
 
 def set_hotend(printer, command: Command, now: float):
@@ -46,12 +48,19 @@ def set_hotend(printer, command: Command, now: float):
         return tool
     if command.has("S"):
         printer.hotends[tool].set_target(now, command.value("S", 0.0))
+        return reply(_hotend_target(printer, tool))
     return reply()
+
+
+def _hotend_target(printer, tool: int) -> Statement:
+    # Marlin says nothing of a new target; Repetier says `TargetExtr0:200`.
+    return state("hotend_target", tool=tool, target=printer.hotends[tool].target)
 
 
 def set_bed(printer, command: Command, now: float):
     if command.has("S"):
         printer.bed.set_target(now, command.value("S", 0.0))
+        return reply(state("bed_target", target=printer.bed.target))
     return reply()
 
 
@@ -61,12 +70,12 @@ def wait_hotend(printer, command: Command, now: float):
         return tool
     heater = printer.hotends[tool]
     yield from _set_and_wait(printer, heater, command, now, tool)
-    return reply()
+    return reply(_hotend_target(printer, tool)) if command.has("S") else reply()
 
 
 def wait_bed(printer, command: Command, now: float):
     yield from _set_and_wait(printer, printer.bed, command, now, None)
-    return reply()
+    return reply(state("bed_target", target=printer.bed.target)) if command.has("S") else reply()
 
 
 def _set_and_wait(printer, heater, command: Command, now: float, tool: int | None):
@@ -86,7 +95,7 @@ def _set_and_wait(printer, heater, command: Command, now: float, tool: int | Non
     while not printer.heating_cancelled and not printer.halted:
         if residency_end is None and heater.target > heater.temperature(now) and now >= watch_end:
             if heater.temperature(now) < watch_goal:
-                for line in thermal_error(printer, "Heating failed", "B" if tool is None else f"T{tool}", now):
+                for line in thermal_error(printer, "heating_failed", "B" if tool is None else f"T{tool}", now):
                     yield Report(line)
                 return now
             watch_end, watch_goal = now + WATCH_TEMP_PERIOD[kind], heater.temperature(now) + WATCH_TEMP_INCREASE[kind]
@@ -96,7 +105,8 @@ def _set_and_wait(printer, heater, command: Command, now: float, tool: int | Non
             break
         if now >= next_report:
             remaining = "?" if residency_end is None else str(int(residency_end - now))
-            yield Report(f" {temperature_report(printer, now, tool)} W:{remaining}")
+            yield Report(Statement("heating", {**heats(printer, now, tool), "remaining": remaining,
+                                               "heater": "B" if tool is None else f"T{tool}"}))
             next_report = now + REPORT_INTERVAL
         if residency_end is None:
             wake = min(next_report, watch_end, max(heater.reached_at(now), now + 0.01))
@@ -110,7 +120,7 @@ def report_temperatures(printer, command: Command, now: float):
     tool = _target_tool(printer, command)
     if isinstance(tool, Reply):
         return tool
-    return Reply(ok_suffix=temperature_report(printer, now, tool))
+    return Reply(answer=temperature_report(printer, now, tool))
 
 
 def auto_report_temperatures(printer, command: Command, now: float):
@@ -134,11 +144,11 @@ def cancel_heating(printer, command: Command, now: float):
 def select_tool(printer, command: Command, now: float):
     tool = int(command.code[1:]) if command.code[1:].isdigit() else -1
     if not 0 <= tool < len(printer.hotends):
-        return reply(f"echo:T{tool} Invalid extruder")
+        return reply(state("invalid_tool", tool=tool))
     if len(printer.hotends) == 1:
         return reply()
     printer.active_tool = tool
-    return reply(f"echo:Active Extruder: {tool}")
+    return reply(state("active_extruder", tool=tool))
 
 
 HANDLERS = {

@@ -1,10 +1,14 @@
 """The printer: its state, and a dispatch table from G-code to handlers.
 
 execute() is a generator: it yields Sleep(until) when a command must wait for simulated time
-(a full planner, a dwell, homing, heating) and Report(text) for lines printed while it waits;
-the value sent back in is the new current time. It returns the Reply for the command. Whoever
-drives it (a trio session, or a test) owns the clock. Handlers live in the modules named after
-what they handle; each is `handler(printer, command, now) -> Reply | Step`.
+(a full planner, a dwell, homing, heating) and Report(statement) for what it states while it
+waits; the value sent back in is the new current time. It returns the Reply for the command.
+Whoever drives it (a trio session, or a test) owns the clock. Handlers live in the modules
+named after what they handle; each is `handler(printer, command, now) -> Reply | Step`.
+
+The model knows no wire format and no firmware's words: what it says is Statements
+(statements.py), which the firmware's profile says in its words. Which commands exist is the
+profile's too: `command_sets` and `unsupported` of the config choose the handlers.
 """
 
 from collections.abc import Generator
@@ -15,10 +19,11 @@ from fake_marlin.emulator.printer import heating, motion, sdcard, system
 from fake_marlin.emulator.printer.gcode import Command, PlainMove, parse
 from fake_marlin.emulator.printer.motion import Limits, MotionState
 from fake_marlin.emulator.printer.planner import MAX_MOVES, Planner
+from fake_marlin.emulator.printer.statements import Statement, state
 from fake_marlin.emulator.printer.steps import Reply, Report, Sleep, Step
 from fake_marlin.emulator.printer.thermal import BED, HOTEND, Heater
 
-__all__ = ["Printer", "PrinterConfig", "Reply", "Report", "Sleep", "Step"]
+__all__ = ["Printer", "PrinterConfig", "Reply", "Report", "Sleep", "Statement", "Step"]
 
 
 DEFAULT_CAPABILITIES = (
@@ -63,11 +68,9 @@ DEFAULT_CAPABILITIES = (
 @dataclass(frozen=True)
 class PrinterConfig:
     extruders: int = 1
-    firmware_version: str = "2.1.2.1"
-    firmware_date: str = "2023-05-21 12:00"
-    machine_type: str = "3D Printer"
-    uuid: str = "cede2a2f-41a2-4748-9b12-c55c62f367ff"
     capabilities: tuple[tuple[str, bool], ...] = DEFAULT_CAPABILITIES
+    command_sets: tuple[str, ...] = ("marlin",)  # the handlers this firmware has, in order
+    unsupported: frozenset[str] = frozenset()  # commands of those sets it does not know
     sd_dir: Path | None = None  # None: the printer has no SD card inserted
     acceleration: float = 3000.0  # mm/s^2
     junction_speed: float = 10.0  # mm/s, what a move may enter and leave at
@@ -90,6 +93,18 @@ class AutoReports:
 
 
 HANDLERS = {**motion.HANDLERS, **heating.HANDLERS, **sdcard.HANDLERS, **system.HANDLERS}
+COMMAND_SETS: dict[str, dict] = {"marlin": HANDLERS}
+
+
+def handlers_for(config: "PrinterConfig") -> dict:
+    """The dispatch table of a firmware: its command sets, later ones over earlier ones,
+    without what it does not know."""
+    table: dict = {}
+    for name in config.command_sets:
+        table.update(COMMAND_SETS[name])
+    for code in config.unsupported:
+        table.pop(code, None)
+    return table
 # Commands that report temperatures themselves while they wait, so no `busy:` lines.
 SELF_REPORTING = frozenset({"M109", "M190"})
 
@@ -97,6 +112,7 @@ SELF_REPORTING = frozenset({"M109", "M190"})
 class Printer:
     def __init__(self, config: PrinterConfig | None = None, now: float = 0.0) -> None:
         self.config = config or PrinterConfig()
+        self.handlers = handlers_for(self.config)
         self._planner = Planner()
         self._unplanned: list[tuple[PlainMove, float]] = []  # see move_at_once()
         self.hotends = [Heater(HOTEND, now) for _ in range(self.config.extruders)]
@@ -157,9 +173,9 @@ class Printer:
             command = parse(line)
         if not command.text:
             return Reply()
-        handler = HANDLERS.get(command.code)
+        handler = self.handlers.get(command.code)
         if handler is None:
-            return Reply((f'echo:Unknown command: "{command.text}"',))
+            return Reply((state("unknown_command", command=command.text),))
         outcome = handler(self, command, now)
         if isinstance(outcome, Generator):
             outcome = yield from outcome
@@ -192,33 +208,33 @@ class Printer:
         if self._unplanned and len(self._unplanned) + self._planner.held() >= MAX_MOVES - 1:
             self._plan_moves()
 
-    def emergency(self, text: str, now: float) -> tuple[str, ...]:
+    def emergency(self, text: str, now: float) -> tuple[Statement, ...]:
         """What the emergency parser does the moment M108/M112/M410/M876 arrives."""
         command: Command = parse(text)
         if command.code == "M108":
             self.heating_cancelled = True
         elif command.code == "M112":
-            return self.kill("echo:M112 Shutdown", now)
+            return self.kill(state("m112_shutdown"), now)
         elif command.code == "M410":
             motion.quickstop(self, now)
         return ()
 
-    def kill(self, reason: str, now: float) -> tuple[str, ...]:
+    def kill(self, reason: Statement, now: float) -> tuple[Statement, ...]:
         """kill(): heaters off, motion stopped, and nothing more until a reset.
 
-        `reason` is the line that says why (`echo:M112 Shutdown`, `Error:Thermal Runaway...`).
+        `reason` says why (m112_shutdown, thermal_runaway...).
         """
         self.halted = True
         self.planner.clear()
         for heater in (*self.hotends, self.bed):
             heater.set_target(now, 0.0)
-        lines = [reason, "Error:Printer halted. kill() called!"]
+        lines = [reason, state("killed")]
         if self.config.capability("HOST_ACTION_COMMANDS"):
-            lines.append("//action:poweroff")
+            lines.append(state("action", action="poweroff"))
         return tuple(lines)
 
-    def temperature_report(self, now: float) -> str:
-        return heating.temperature_report(self, now)
+    def temperature_report(self, now: float, key: str = "temperatures") -> Statement:
+        return heating.temperature_report(self, now, key=key)
 
-    def position_report(self, now: float) -> str:
-        return motion.position_report(self, now)
+    def position_report(self, now: float, key: str = "position") -> Statement:
+        return motion.position_report(self, now, key=key)

@@ -5,6 +5,7 @@ from dataclasses import dataclass, field
 
 from fake_marlin.emulator.printer.gcode import Command, PlainMove
 from fake_marlin.emulator.printer.planner import move_time
+from fake_marlin.emulator.printer.statements import Statement, state
 from fake_marlin.emulator.printer.steps import Sleep, reply
 
 AXES = "XYZE"
@@ -158,14 +159,14 @@ def arc(printer, command: Command, now: float):
         dx, dy = target[0] - start[0], target[1] - start[1]
         chord = math.hypot(dx, dy)
         if chord == 0 or abs(radius) < chord / 2:
-            return reply("echo:G2/G3 bad R")
+            return reply(state("arc_bad_radius"))
         h = math.sqrt(radius * radius - chord * chord / 4) * (1 if clockwise == (radius < 0) else -1)
         center = (start[0] + dx / 2 - h * dy / chord, start[1] + dy / 2 + h * dx / chord)
     else:
         center = (start[0] + command.value("I", 0.0), start[1] + command.value("J", 0.0))
     radius = math.hypot(start[0] - center[0], start[1] - center[1])
     if radius == 0:
-        return reply("echo:G2/G3 bad center")
+        return reply(state("arc_bad_center"))
     a0 = math.atan2(start[1] - center[1], start[0] - center[0])
     a1 = math.atan2(target[1] - center[1], target[0] - center[0])
     sweep = a1 - a0
@@ -240,7 +241,7 @@ def probe_bed(printer, command: Command, now: float):
     """G29 as a 3-point probing cycle: travel to each point, probe down, report."""
     if not {"X", "Y", "Z"} <= printer.motion.homed:
         missing = "".join(axis for axis in "XYZ" if axis not in printer.motion.homed)
-        return reply(f"echo:Home {missing} First")
+        return reply(state("home_first", axes=missing))
     now = yield from synchronize(printer, now)
     lines = []
     for index, (x, y) in enumerate(PROBE_POINTS):
@@ -248,9 +249,9 @@ def probe_bed(printer, command: Command, now: float):
         now += travel / printer.config.homing_feedrate[0] + 2 * 5.0 / printer.config.homing_feedrate[2]
         printer.motion.position[0:2] = [x, y]
         z = 0.01 * (index - 1)
-        lines.append(f"Bed X: {x:.3f} Y: {y:.3f} Z: {z:.3f}")
+        lines.append(state("probe_point", x=x, y=y, z=z))
         yield Sleep(now)
-    lines.append("echo:Bed leveling applied")
+    lines.append(state("bed_leveling_applied"))
     return reply(*lines)
 
 
@@ -325,7 +326,7 @@ def retract_settings(printer, command: Command, now: float):
 def feedrate_percent(printer, command: Command, now: float):
     percent = command.value("S")
     if percent is None:
-        return reply(f"FR:{printer.motion.feedrate_percent:.0f}%")
+        return reply(state("feedrate_percent", percent=printer.motion.feedrate_percent))
     printer.motion.feedrate_percent = max(1.0, percent)
     return reply()
 
@@ -333,20 +334,20 @@ def feedrate_percent(printer, command: Command, now: float):
 def flow_percent(printer, command: Command, now: float):
     percent = command.value("S")
     if percent is None:
-        return reply(f"echo:E{printer.active_tool} Flow: {printer.motion.flow_percent:.0f}%")
+        return reply(state("flow_percent", tool=printer.active_tool,
+                           percent=printer.motion.flow_percent))
     printer.motion.flow_percent = max(1.0, percent)
     return reply()
 
 
-def position_report(printer, now: float) -> str:
-    """`X:0.00 Y:0.00 Z:0.00 E:0.00 Count X:0 Y:0 Z:0`, as M114 prints it."""
+def position_report(printer, now: float, key: str = "position") -> Statement:
+    """M114's report: where the axes are going, and where the steppers are (in steps);
+    `X:0.00 Y:0.00 Z:0.00 E:0.00 Count X:0 Y:0 Z:0` in Marlin's words."""
     x, y, z, e = printer.motion.position
     stepper = printer.planner.stepper_position(now, tuple(printer.motion.position))
-    counts = " ".join(
-        f"{axis}:{round(value * steps)}"
-        for axis, value, steps in zip("XYZ", stepper, printer.config.steps_per_mm)
-    )
-    return f"X:{x:.2f} Y:{y:.2f} Z:{z:.2f} E:{e:.2f} Count {counts}"
+    counts = {f"count_{axis}": round(value * steps) for axis, value, steps in
+              zip("xyz", stepper, printer.config.steps_per_mm)}
+    return Statement(key, {"x": x, "y": y, "z": z, "e": e, **counts})
 
 
 def report_position(printer, command: Command, now: float):

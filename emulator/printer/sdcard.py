@@ -1,4 +1,4 @@
-"""The SD card, backed by a directory: M20-M30, M524, with the messages Marlin prints.
+"""The SD card, backed by a directory: M20-M30, M524, stating what Marlin says of each.
 
 Files are shown under FAT 8.3 names (`TEST~1.GCO`) as Marlin's SdFat does, and with their long
 names where EXTENDED_M20 asks for them. M23 accepts either.
@@ -10,6 +10,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from fake_marlin.emulator.printer.gcode import Command
+from fake_marlin.emulator.printer.statements import Statement, state
 from fake_marlin.emulator.printer.steps import reply
 from fake_marlin.wire.gcode import strip_comment
 
@@ -143,10 +144,11 @@ class SdCard:
         with open(self.saving, "a", encoding="ascii", errors="replace", newline="") as target:
             target.write(text + "\r\n")
 
-    def status(self) -> str:
+    def status(self) -> Statement:
         if self.selected is not None and self.printing:
-            return f"SD printing byte {self.selected.position}/{len(self.selected.data)}"
-        return "Not SD printing"
+            return state("sd_printing_byte", position=self.selected.position,
+                         size=len(self.selected.data))
+        return state("not_sd_printing")
 
 
 def _no_media(printer) -> bool:
@@ -155,46 +157,45 @@ def _no_media(printer) -> bool:
 
 def list_files(printer, command: Command, now: float):
     if _no_media(printer):
-        return reply("echo:No media")
+        return reply(state("no_media"))
     with_long = "L" in command.string_argument.upper()
     with_time = "T" in command.string_argument.upper()
-    lines = ["Begin file list"]
+    key = "file_entry" + ("_long" if with_long else "") + ("_time" if with_time else "")
+    lines = [state("file_list_begin")]
     for short, long, path in printer.sd.entries():
-        line = f"{short} {path.stat().st_size}"
-        if with_time:
-            stamp = time.localtime(path.stat().st_mtime)
-            fat_date = ((stamp.tm_year - 1980) << 9) | (stamp.tm_mon << 5) | stamp.tm_mday
-            fat_time = (stamp.tm_hour << 11) | (stamp.tm_min << 5) | (stamp.tm_sec // 2)
-            line += f" 0x{fat_date:04X}{fat_time:04X}"
-        if with_long:
-            line += f" {long}"
-        lines.append(line)
-    lines.append("End file list")
+        info = path.stat()
+        stamp = time.localtime(info.st_mtime)
+        fat_date = ((stamp.tm_year - 1980) << 9) | (stamp.tm_mon << 5) | stamp.tm_mday
+        fat_time = (stamp.tm_hour << 11) | (stamp.tm_min << 5) | (stamp.tm_sec // 2)
+        lines.append(state(key, short=short, size=info.st_size, long=long,
+                           stamp=f"0x{fat_date:04X}{fat_time:04X}"))
+    lines.append(state("file_list_end"))
     return reply(*lines)
 
 
 def mount(printer, command: Command, now: float):
     printer.sd.reset()
-    return reply("echo:SD card ok" if printer.sd.mounted else "echo:SD init fail")
+    return reply(state("sd_ok" if printer.sd.mounted else "sd_init_fail"))
 
 
 def release(printer, command: Command, now: float):
     printer.sd.reset()
     printer.sd.mounted = False
-    return reply("echo:SD card released")
+    return reply(state("sd_released"))
 
 
 def select_file(printer, command: Command, now: float):
     name = command.string_argument
     if _no_media(printer):
-        return reply("echo:No media")
+        return reply(state("no_media"))
     found = printer.sd.find(name)
     if found is None:
-        return reply(f"open failed, File: {name}.")
+        return reply(state("open_failed", name=name))
     short, path = found
     printer.sd.selected = OpenFile(path, short, path.read_bytes())
     printer.sd.printing = False
-    return reply(f"File opened: {short} Size: {len(printer.sd.selected.data)}", "File selected")
+    return reply(state("file_opened", name=short, size=len(printer.sd.selected.data), long=path.name),
+                 state("file_selected"))
 
 
 def start_print(printer, command: Command, now: float):
@@ -221,8 +222,8 @@ def report_status(printer, command: Command, now: float):
     if command.has("C"):
         selected = printer.sd.selected
         if selected is None:
-            return reply("Current file: (no file)")
-        return reply(f"Current file: {selected.short} {selected.path.name}")
+            return reply(state("no_current_file"))
+        return reply(state("current_file", short=selected.short, long=selected.path.name))
     return reply(printer.sd.status())
 
 
@@ -234,35 +235,35 @@ def begin_write(printer, command: Command, now: float):
     if printer.config.capability("BINARY_FILE_TRANSFER") and (flag := _BINARY_FLAG.match(name)):
         if flag[1] > "0":  # M28 B1: the session hands the line to the binary protocol
             printer.sd.binary_mode = True
-            return reply("echo:Switching to Binary Protocol")
+            return reply(state("switching_to_binary"))
         name = name[flag.end():]
     if _no_media(printer):
-        return reply("echo:No media")
+        return reply(state("no_media"))
     opened = printer.sd.open_for_write(name)
     if opened is None:
-        return reply(f"open failed, File: {name}.")
+        return reply(state("open_failed", name=name))
     printer.sd.saving, shown = opened
-    return reply(f"Writing to file: {shown}")
+    return reply(state("writing_to_file", name=shown))
 
 
 def end_write(printer, command: Command, now: float):
     if printer.sd.saving is None:
         return reply()
     printer.sd.saving = None
-    return reply("Done saving file.")
+    return reply(state("done_saving"))
 
 
 def delete_file(printer, command: Command, now: float):
     name = command.string_argument
     found = None if _no_media(printer) else printer.sd.find(name)
     if found is None:
-        return reply(f"Deletion failed, File: {name}.")
+        return reply(state("deletion_failed", name=name))
     short, path = found
     if printer.sd.selected is not None and printer.sd.selected.path == path:
         printer.sd.selected = None
         printer.sd.printing = False
     path.unlink()
-    return reply(f"File deleted:{short}")
+    return reply(state("file_deleted", name=short))
 
 
 def abort_print(printer, command: Command, now: float):

@@ -3,6 +3,8 @@
 from collections.abc import Generator
 from dataclasses import dataclass
 
+from fake_marlin.emulator.printer.statements import Statement
+
 
 @dataclass(frozen=True)
 class Sleep:
@@ -11,20 +13,24 @@ class Sleep:
 
 @dataclass(frozen=True)
 class Report:
-    text: str
+    """A statement made while the command waits (M109's temperatures)."""
+
+    statement: Statement
 
 
 @dataclass(frozen=True)
 class Reply:
-    lines: tuple[str, ...] = ()
-    ok_suffix: str = ""  # text Marlin prints on the `ok` line itself (M105's temperatures)
+    lines: tuple[Statement, ...] = ()
+    # The command's answer where the firmware may put it on its `ok` line (M105's temperatures,
+    # `ok T:21.00 /0.00 ...` in Marlin's words): the firmware's profile says where it goes.
+    answer: Statement | None = None
 
-    def response_data(self) -> tuple[str, ...]:
-        """Everything the command printed, one line each (for protocols without `ok` lines)."""
-        return self.lines + ((self.ok_suffix,) if self.ok_suffix else ())
+    def response_data(self) -> tuple[Statement, ...]:
+        """Everything the command stated (for protocols without `ok` lines)."""
+        return self.lines + ((self.answer,) if self.answer is not None else ())
 
 
-def reply(*lines: str) -> Reply:
+def reply(*lines: Statement) -> Reply:
     return Reply(tuple(lines))
 
 

@@ -1,28 +1,22 @@
 """System G-codes: identity (M115), messages (M117/M118), debug, halt and host prompts."""
 
 from fake_marlin.emulator.printer.gcode import Command
+from fake_marlin.emulator.printer.statements import state
 from fake_marlin.emulator.printer.steps import reply
 
 DEBUG_FLAGS = ("ECHO", "INFO", "ERRORS", "DRYRUN", "COMMUNICATION", "LEVELING")
 
 
 def firmware_info(printer, command: Command, now: float):
-    config = printer.config
-    lines = [
-        f"FIRMWARE_NAME:Marlin {config.firmware_version} ({config.firmware_date}) "
-        "SOURCE_CODE_URL:github.com/MarlinFirmware/Marlin PROTOCOL_VERSION:1.0 "
-        f"MACHINE_TYPE:{config.machine_type} KINEMATICS:Cartesian "
-        f"EXTRUDER_COUNT:{config.extruders} UUID:{config.uuid}"
-    ]
-    lines += [f"Cap:{name}:{int(enabled)}" for name, enabled in config.capabilities]
-    return reply(*lines)
+    # Its capability lines are the firmware's to say (its profile's, as --capability set them).
+    return reply(state("firmware_info", extruders=printer.config.extruders))
 
 
 def debug_level(printer, command: Command, now: float):
     if command.has("S"):
         printer.debug_flags = int(command.value("S", 0.0)) & 0xFF
     names = [name for bit, name in enumerate(DEBUG_FLAGS) if printer.debug_flags & (1 << bit)]
-    return reply("echo:DEBUG:" + (",".join(names) if names else "OFF"))
+    return reply(state("debug_flags", flags=",".join(names) if names else "OFF"))
 
 
 def lcd_message(printer, command: Command, now: float):
@@ -39,14 +33,14 @@ def serial_print(printer, command: Command, now: float):
             action |= head == "A1"
             echo |= head == "E1"
             text = text[2:].lstrip(" ")
-    return reply(("echo:" if echo else "") + ("//" if action else "") + text)
+    return reply(state("serial_print", text=("echo:" if echo else "") + ("//" if action else "") + text))
 
 
 def halt(printer, command: Command, now: float):
     # Normally the emergency parser has killed the printer before this copy is dequeued.
     if printer.halted:
         return reply()
-    return reply(*printer.kill("echo:M112 Shutdown", now))
+    return reply(*printer.kill(state("m112_shutdown"), now))
 
 
 def auto_report_position(printer, command: Command, now: float):

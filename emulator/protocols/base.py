@@ -71,6 +71,7 @@ class CommandDone:
     room: int | None = None  # the planner's free blocks now (ADVANCED_OK's P, the `o` frame's)
     response: tuple[str, ...] = ()  # its response data, where the answer carries it (Ultimaker)
     ok_suffix: str = ""  # Marlin: text on the `ok` line itself (M105's temperatures)
+    quiet: bool = False  # the slot is free, but the firmware says nothing (a quirk's lost `ok`)
 
 
 @dataclass(frozen=True, slots=True)

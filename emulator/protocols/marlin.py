@@ -6,6 +6,10 @@ carry a correct XOR checksum, and a resend of the last line or the one before is
 silently. Lines are read only while the command queue has room, as the firmware stops reading
 its RX buffer when the queue is full. Marlin's emergency parser sees M108/M112/M410/M876 as
 soon as their line arrives, however full the queue.
+
+The other firmwares that speak a line protocol of this kind (Prusa, Klipper, RepRapFirmware,
+Smoothieware, older Marlin) differ in its rules: which checks they make, the words of their
+errors, resend requests and `ok`. LineRules holds them, as each firmware's profile says.
 """
 
 import re
@@ -22,6 +26,34 @@ BUFSIZE = 4
 PLANNER_ROOM = 15  # ADVANCED_OK's P where the session states none: an empty planner's room
 
 
+@dataclass(frozen=True)
+class LineRules:
+    """One firmware's rules for the line protocol (its profile's [lines] table)."""
+
+    ok: str = "ok"
+    line_end: str = "\n"
+    queue: int = BUFSIZE  # commands the firmware takes before it stops reading
+    # A numbered line must be last_N + 1 (a resend of the last two is dropped silently).
+    sequence: bool = True
+    # The `*<checksum>` of a numbered line: "required" (Marlin: none is an error), "optional"
+    # (checked where it is given), "ignored" (never checked: Klipper).
+    checksum: str = "required"
+    bad_line: str = "resend"  # what a bad line draws: "resend" (error, resend, ok) or "drop"
+    resend: str = "Resend: {line}"
+    ok_after_resend: bool = True
+    extra_ok_after_resend: bool = False  # a quirk: a second `ok` after the resend request
+    # M105's temperatures on its `ok` line (`ok T:...`); False: a line of their own before it.
+    answer_on_ok_line: bool = True
+    ok_for_blank_lines: bool = False  # Klipper: every line it reads gets its `ok`
+    # What the emergency parser acts on as it arrives, however full the queue.
+    emergency: tuple[str, ...] = ("M108", "M112", "M410", "M876")
+    error_line_number: str = "Error:Line Number is not Last Line Number+1, Last Line: {last}"
+    error_checksum: str = "Error:checksum mismatch, Last Line: {last}"
+    error_no_checksum: str = "Error:No Checksum with line number, Last Line: {last}"
+    # Marlin 1.1 refuses a checksum without a line number; "" : accepted (Marlin 2.1).
+    error_no_line_number: str = ""
+
+
 class InputState(Enum):
     NORMAL = auto()
     EOL_COMMENT = auto()  # after `;` or an overlong line: skip to the end of the line
@@ -34,9 +66,10 @@ _NORMAL = InputState.NORMAL
 
 
 class LineError(Enum):
-    LINE_NUMBER = "Line Number is not Last Line Number+1, Last Line: "
-    CHECKSUM = "checksum mismatch, Last Line: "
-    NO_CHECKSUM = "No Checksum with line number, Last Line: "
+    LINE_NUMBER = "line_number"
+    CHECKSUM = "checksum"
+    NO_CHECKSUM = "no_checksum"
+    NO_LINE_NUMBER = "no_line_number"
 
 
 # Events out (and CommandReceived, protocols.base).
@@ -63,7 +96,15 @@ _SPECIAL = re.compile(rb"[;\\(\x08]")  # what process_stream_char() treats other
 # What a host sends nearly always, `N<n> <command>*<checksum>\n`, in ASCII, with no other line
 # end and nothing in it that process_stream_char() treats other than text (_SPECIAL, NUL).
 _PLAIN_LINE = re.compile(rb"N(\d+)([^*\r\n;\\(\x08\x00\x80-\xff]*)\*(\d+)\n")
-_EMERGENCY = re.compile(r"(?:N-?\d+\s*)?(M(?:108|112|410)(?!\d)|M876\s*S\d+)")
+_EMERGENCY_FORMS = {"M108": r"M108(?!\d)", "M112": r"M112(?!\d)", "M410": r"M410(?!\d)",
+                    "M876": r"M876\s*S\d+"}
+
+
+def _emergency_pattern(codes: tuple[str, ...]) -> re.Pattern[str] | None:
+    forms = [_EMERGENCY_FORMS[code] for code in codes if code in _EMERGENCY_FORMS]
+    if not forms:
+        return None
+    return re.compile(r"(?:N-?\d+\s*)?(" + "|".join(forms) + ")")
 
 
 def strtol(text: str) -> int:
@@ -84,9 +125,11 @@ def strip_line_number(line: str) -> str:
 
 
 class MarlinProtocol:
-    def __init__(self, advanced_ok: bool = False, queue_size: int = BUFSIZE) -> None:
+    def __init__(self, advanced_ok: bool = False, queue_size: int | None = None,
+                 rules: LineRules = LineRules()) -> None:
         self.advanced_ok = advanced_ok
-        self.queue_size = queue_size
+        self.rules = rules
+        self.queue_size = rules.queue if queue_size is None else queue_size
         self.last_n = 0
         self.saving_to_sd = False  # while M28 writes a file, every line must be numbered
         self._queued = 0
@@ -98,6 +141,17 @@ class MarlinProtocol:
         self._emergency_line = bytearray()
         self._emergencies: list[EmergencyCommand] = []
         self._read: CommandReceived | None = None  # a line receive_data() read whole
+
+    @property
+    def rules(self) -> LineRules:
+        return self._rules
+
+    @rules.setter
+    def rules(self, rules: LineRules) -> None:
+        """The firmware's rules; a quirk switched on changes them between lines."""
+        self._rules = rules
+        self._ok = (rules.ok + rules.line_end).encode("ascii", "replace")
+        self._emergency = _emergency_pattern(rules.emergency)
 
     # -- receiving ---------------------------------------------------------------------
     def receive_data(self, data: bytes) -> None:
@@ -112,6 +166,8 @@ class MarlinProtocol:
 
     def _scan_for_emergencies(self, data: bytes) -> None:
         """The emergency parser sees every byte as it arrives, whole lines of them at a time."""
+        if self._emergency is None:
+            return
         if b"M" not in data and b"M" not in self._emergency_line:
             # No line here can be an emergency command (the usual G1): keep the unfinished tail.
             last_end = max(data.rfind(b"\n"), data.rfind(b"\r"))
@@ -127,7 +183,7 @@ class MarlinProtocol:
             self._emergency_take(data[start:end.start()])
             if b"M" in self._emergency_line:  # every emergency command is an M code
                 line = self._emergency_line.decode("ascii", "replace").strip()
-                match = _EMERGENCY.match(line)
+                match = self._emergency.match(line) if self._emergency else None
                 if match:
                     self._emergencies.append(EmergencyCommand(re.sub(r"\s+", " ", match[1])))
             self._emergency_line.clear()
@@ -246,27 +302,35 @@ class MarlinProtocol:
         self._state = InputState.NORMAL
         self._escaped = False
         command = raw.lstrip(" ")
+        rules = self.rules
         if not command:
+            if rules.ok_for_blank_lines:
+                self._output += self._ok
             return None
         line_number = None
         if command.startswith("N"):
             is_m110 = "M110" in command
             number_at = command.find("N", 4) if is_m110 else -1
             number = strtol(command[number_at + 1:] if number_at >= 0 else command[1:])
-            if number != self.last_n + 1 and not is_m110:
+            if rules.sequence and number != self.last_n + 1 and not is_m110:
                 if self.last_n - 1 <= number <= self.last_n:
                     return None  # a resend crossed our Resend request: already have it
                 return self._line_error(LineError.LINE_NUMBER)
             star = command.rfind("*")
-            if star < 0:
-                return self._line_error(LineError.NO_CHECKSUM)
-            if strtol(command[star + 1:]) != xor_checksum(command[:star]):
-                return self._line_error(LineError.CHECKSUM)
+            if rules.checksum != "ignored":
+                if star < 0 and rules.checksum == "required":
+                    return self._line_error(LineError.NO_CHECKSUM)
+                if star >= 0 and strtol(command[star + 1:]) != xor_checksum(command[:star]):
+                    return self._line_error(LineError.CHECKSUM)
             self.last_n = line_number = number
         elif self.saving_to_sd and not re.match(r"M29(?!\d)", command):
             return self._line_error(LineError.NO_CHECKSUM)
+        elif rules.error_no_line_number and "*" in command:
+            return self._line_error(LineError.NO_LINE_NUMBER)
         text = strip_line_number(remove_paren_comments(command))
         if not text:
+            if rules.ok_for_blank_lines:
+                self._output += self._ok
             return None
         self._queued += 1
         return CommandReceived(text, line_number)
@@ -274,8 +338,17 @@ class MarlinProtocol:
     def _line_error(self, error: LineError) -> LineRejected:
         # Error, Resend and ok go out back to back: printcore mistakes them for two
         # permissions to send if they arrive in separate reads.
+        rules = self.rules
         resend = self.last_n + 1
-        self._output += f"Error:{error.value}{self.last_n}\nResend: {resend}\nok\n".encode("ascii")
+        if rules.bad_line == "resend":
+            words = getattr(rules, f"error_{error.value}")
+            lines = [words.format(last=self.last_n, line=resend), rules.resend.format(line=resend)]
+            if rules.ok_after_resend:
+                lines.append(rules.ok)
+                if rules.extra_ok_after_resend:
+                    lines.append(rules.ok)
+            self._output += "".join(line + rules.line_end for line in lines if line).encode(
+                "ascii", "replace")
         return LineRejected(error, resend)
 
     def hand_over(self) -> bytes:
@@ -292,19 +365,24 @@ class MarlinProtocol:
     def send(self, event: CommandDone | Output) -> bytes:
         if isinstance(event, CommandDone):
             self._queued = max(0, self._queued - 1)
-            if event.ok_suffix:
-                self._output += f"ok {event.ok_suffix}\n".encode("ascii", "replace")
+            end = self.rules.line_end
+            if event.quiet:
+                pass
+            elif event.ok_suffix and self.rules.answer_on_ok_line:
+                self._output += f"{self.rules.ok} {event.ok_suffix}{end}".encode("ascii", "replace")
+            elif event.ok_suffix:
+                self._output += f"{event.ok_suffix}{end}{self.rules.ok}{end}".encode("ascii", "replace")
             elif self.advanced_ok:
                 number = f" N{event.number}" if event.number is not None else ""
                 room = PLANNER_ROOM if event.room is None else event.room
                 # The slot this command held is free again by the time `ok` goes out.
-                self._output += f"ok{number} P{room} B{self.queue_free}\n".encode()
+                self._output += f"{self.rules.ok}{number} P{room} B{self.queue_free}{end}".encode()
             elif not self._output:
-                return b"ok\n"  # the usual answer, with nothing waiting to go before it
+                return self._ok  # the usual answer, with nothing waiting to go before it
             else:
-                self._output += b"ok\n"
+                self._output += self._ok
         elif isinstance(event, Output):
-            self._output += f"{event.text}\n".encode("ascii", "replace")
+            self._output += f"{event.text}{self.rules.line_end}".encode("ascii", "replace")
         else:
             raise TypeError(f"cannot send {event!r}")
         return self.data_to_send()

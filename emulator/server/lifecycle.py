@@ -1,17 +1,20 @@
 """The printer's life on a link: power on, boot, and reboot whenever a host opens the port."""
 
+import dataclasses
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 
 import trio
 
 from fake_marlin.emulator.faults.layer import FaultConfig, FaultLayer, Segment
+from fake_marlin.emulator.firmware import Firmware, Quirks
 from fake_marlin.emulator.faults.rules import LINK_KINDS, FaultKind, FaultRule, printer_failure
 from fake_marlin.emulator.journal.writer import Journal
 from fake_marlin.emulator.link.base import HostOpened, Link
 from fake_marlin.emulator.link.conditions import LinkConditions, Pipe
 from fake_marlin.emulator.printer import failures
 from fake_marlin.emulator.printer.model import Printer
+from fake_marlin.emulator.printer.statements import Statement
 from fake_marlin.emulator.protocols.avr_memory import BoardMemory
 from fake_marlin.emulator.sessions.base import Session
 from fake_marlin.emulator.sessions.commstack import CommStackSession
@@ -41,9 +44,12 @@ class PrinterServer:
     def __init__(
         self, link: Link, printer: Printer, journal: Journal, config: ServerConfig,
         memory: BoardMemory | None = None, flash_changed: Callable[[], None] | None = None,
-        trace: Trace | None = None,
+        trace: Trace | None = None, firmware: Firmware | None = None,
     ) -> None:
         self.link = link
+        # Without a firmware of its own: Marlin's, saying the capabilities the model has.
+        self.firmware = firmware or dataclasses.replace(
+            Firmware.make(), capabilities=printer.config.capabilities)
         # A link that can wait for the host's bytes without trio (PtyLink.receive_now): None
         # from it, or a link without it, means awaiting receive().
         self._receive_now: Callable[[], bytes | None] = getattr(link, "receive_now",
@@ -174,22 +180,24 @@ class PrinterServer:
                 self._send, lambda: self._detecting_session(reason, bootloader=False),
                 self.memory, self._flash_changed,
             )
+        firmware = self.firmware.speaking(protocol)
         if protocol == "marlin":
             return MarlinSession(
                 self.printer, self.journal, self._send, self.config.advanced_ok, reason,
-                self._before_command,
+                self._before_command, firmware,
             )
         if protocol == "ultimaker":
             return UltimakerSession(
                 self.printer, self.journal, self._send, self.config.ultimaker_queue_size,
-                self._before_command,
+                self._before_command, firmware,
             )
         if protocol == "repetier":
             return RepetierSession(
-                self.printer, self.journal, self._send, reason, self._before_command
+                self.printer, self.journal, self._send, reason, self._before_command, firmware
             )
         if protocol == "commstack":
-            return CommStackSession(self.printer, self.journal, self._send, self._before_command)
+            return CommStackSession(self.printer, self.journal, self._send, self._before_command,
+                                    firmware)
         raise ValueError(f"unknown protocol {protocol!r}")
 
     def _send(self, data: bytes) -> None:
@@ -282,10 +290,21 @@ class PrinterServer:
         """A printer fault now, from outside (the control channel)."""
         self._printer_fault(rule)
 
-    def announce(self, lines: Iterable[str]) -> None:
+    def announce(self, lines: Iterable[Statement | str]) -> None:
+        """What the printer says now: statements in its firmware's words, text as it is."""
         session = self._active_session()
         if session is not None:
-            session.announce(lines)
+            session.announce([line if isinstance(line, Statement) else
+                              Statement("verbatim", {"text": line}) for line in lines])
+
+    def set_quirks(self, quirks: Quirks) -> None:
+        """Switch the firmware's quirks (the control channel): the session on now takes them
+        from its next line, a new boot from its start."""
+        self.firmware.quirks = quirks
+        session = self._active_session()
+        changed = getattr(session, "quirks_changed", None)
+        if changed is not None:
+            changed()
 
     @property
     def protocol_name(self) -> str | None:

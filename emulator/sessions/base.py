@@ -7,6 +7,7 @@ from typing import Any, Protocol
 
 import trio
 
+from fake_marlin.emulator.printer.statements import Statement
 from fake_marlin.emulator.protocols.base import TimedMachine
 
 
@@ -26,8 +27,8 @@ class Session(Protocol):
     async def run(self) -> None:
         """What the session does in its own time, until the reset that ends it cancels it."""
 
-    def announce(self, lines: Iterable[str]) -> None:
-        """Lines the firmware prints on its own (a fault, a kill, the control channel's)."""
+    def announce(self, statements: Iterable[Statement]) -> None:
+        """What the firmware says on its own (a fault, a kill, the control channel's)."""
 
     def block_queue(self, seconds: float, nursery: trio.Nursery) -> None:
         """The command queue takes nothing for `seconds` (a queue-full fault)."""

@@ -31,8 +31,10 @@ from pathlib import Path
 
 import trio
 
+from fake_marlin.emulator.firmware import Firmware
 from fake_marlin.emulator.journal.writer import Journal
 from fake_marlin.emulator.printer.model import Printer
+from fake_marlin.emulator.printer.statements import Statement
 from fake_marlin.emulator.printer.sdcard import OpenFile
 from fake_marlin.emulator.protocols.commstack import (
     CommStackProtocol,
@@ -66,11 +68,14 @@ class CommStackSession:
         journal: Journal,
         send: Callable[[bytes], None],
         before_command: Callable[[str], None] = lambda text: None,
+        firmware: Firmware | None = None,
     ) -> None:
         self.printer = printer
         self.journal = journal
         self._send = send
         self._before_command = before_command
+        self.firmware = firmware or Firmware.make()
+        self._words = self.firmware.words
         self.protocol = CommStackProtocol()
         self._requests_in, self._requests = trio.open_memory_channel[RequestReceived](math.inf)
         self._upload: _Upload | None = None
@@ -85,7 +90,7 @@ class CommStackSession:
     def boot(self) -> None:
         pass  # the MK20 speaks first only with its pings
 
-    def announce(self, lines: Iterable[str]) -> None:
+    def announce(self, statements: Iterable[Statement]) -> None:
         pass  # CommStack has no channel for the printer's messages
 
     def block_queue(self, seconds: float, nursery: trio.Nursery) -> None:
@@ -147,9 +152,9 @@ class CommStackSession:
         self._before_command(text)
         if self.printer.halted:
             return []
-        reports: list[str] = []
+        reports: list[Statement] = []
         reply = await run_command(self.printer, text, self.journal, reports.append)
-        return reports + list(reply.response_data())
+        return self._words.lines([*reports, *reply.response_data()])
 
     # -- the tasks -----------------------------------------------------------------------
     async def _handle(self, request: RequestReceived) -> None:
@@ -187,9 +192,8 @@ class CommStackSession:
             self._last_stored = None
 
     def _system_info(self) -> bytes:
-        config = self.printer.config
         return SYSTEM_INFO.pack(
-            b"127.0.0.1", 0, b"", b"fake-marlin", config.uuid.encode(), b"1.0",
+            b"127.0.0.1", 0, b"", b"fake-marlin", self.firmware.identity.uuid.encode(), b"1.0",
             b"02:00:00:00:00:01", BUILD_NUMBER, False,
         )
 

@@ -7,6 +7,7 @@ import trio
 from fake_marlin.emulator.journal.writer import Journal
 from fake_marlin.emulator.printer.gcode import Command, parse
 from fake_marlin.emulator.printer.model import Printer, Reply, Report, Sleep
+from fake_marlin.emulator.printer.statements import Statement
 from fake_marlin.wire.gcode import strip_comment
 
 
@@ -25,7 +26,7 @@ class CommandRun:
         printer: Printer,
         line: str,
         journal: Journal,
-        on_report: Callable[[str], None],
+        on_report: Callable[[Statement], None],
         command: Command | None = None,
     ) -> None:
         self.printer = printer
@@ -50,7 +51,7 @@ class CommandRun:
                 if isinstance(step, Sleep):
                     return step.until
                 if isinstance(step, Report):
-                    self.on_report(step.text)
+                    self.on_report(step.statement)
                 step = self._steps.send(trio.current_time())
         except StopIteration as finished:
             self.reply = finished.value
@@ -90,7 +91,7 @@ async def finish(run: CommandRun, until: float | None) -> Reply:
 
 
 async def run_command(
-    printer: Printer, line: str, journal: Journal, on_report: Callable[[str], None]
+    printer: Printer, line: str, journal: Journal, on_report: Callable[[Statement], None]
 ) -> Reply:
     """Execute one command to completion, sleeping whenever the model waits for time."""
     run = CommandRun(printer, line, journal, on_report)

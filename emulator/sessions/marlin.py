@@ -1,4 +1,5 @@
-"""One boot of a printer speaking Marlin's ASCII protocol."""
+"""One boot of a printer speaking Marlin's ASCII protocol, in its firmware's words (Marlin's,
+Prusa's, Klipper's...: the firmware's profile says them, and sets the protocol's rules)."""
 
 import math
 import re
@@ -7,32 +8,18 @@ from collections.abc import Callable, Iterable
 
 import trio
 
+from fake_marlin.emulator.firmware import Firmware
 from fake_marlin.emulator.journal.writer import Journal
 from fake_marlin.emulator.printer.gcode import Command, parse, plain_move
 from fake_marlin.emulator.printer.model import SELF_REPORTING, Printer, Reply
+from fake_marlin.emulator.printer.statements import Statement, state
 from fake_marlin.emulator.protocols.base import CommandDone, CommandReceived, Output
 from fake_marlin.emulator.protocols.marlin import EmergencyCommand, MarlinProtocol
 from fake_marlin.emulator.sessions.driver import CommandRun, finish, hold_queue_full
 from fake_marlin.emulator.sessions.marlin_binary import BinaryTransfer
 
-BUSY_INTERVAL = 2.0  # HOST_KEEPALIVE default; M113 changes it
 PLAIN_OK = CommandDone()  # without ADVANCED_OK an `ok` says nothing of its line: one event does for all
-
-
-def boot_lines(printer: Printer, reason: str) -> list[str]:
-    config = printer.config
-    lines = [
-        "start",
-        f"echo:{reason}",
-        f"Marlin {config.firmware_version}",
-        f"echo: Last Updated: {config.firmware_date.split()[0]} | Author: (fake-marlin)",
-        f"echo: Compiled: {config.firmware_date.split()[0]}",
-        "echo: Free Memory: 4515  PlannerBufferBytes: 1232",
-        "echo:V86 stored settings retrieved (621 bytes; crc 47016)",
-    ]
-    if printer.sd.mounted:
-        lines.append("echo:SD card ok")
-    return lines
+QUIET_OK = CommandDone(quiet=True)  # the slot is free, the `ok` never sent (a quirk)
 
 
 class MarlinSession:
@@ -44,35 +31,45 @@ class MarlinSession:
         advanced_ok: bool = False,
         reset_reason: str = "PowerUp",
         before_command: Callable[[str], None] = lambda text: None,
+        firmware: Firmware | None = None,
     ) -> None:
         self.printer = printer
         self.journal = journal
         self._send = send
         self.reset_reason = reset_reason
         self._before_command = before_command
-        self.protocol = MarlinProtocol(advanced_ok)
+        self.firmware = firmware = firmware or Firmware.make()
+        self._words = firmware.words
+        self.protocol = MarlinProtocol(advanced_ok, rules=firmware.line_rules())
+        self._oks = 0  # sent or dropped, for the quirk that drops every Nth
+        self._drop_ok_every = firmware.quirks.drop_ok_every
         self._backlog: deque[CommandReceived] = deque()  # received while a command waits
         self._waiting: tuple[CommandReceived, Command, CommandRun, float] | None = None
         self._executor_idle = False  # until the executor task runs
         self._work = trio.Event()
         self._reports: tuple[object, ...] = ()
-        self.busy_interval = BUSY_INTERVAL
+        quirks = firmware.quirks
+        self.busy_interval = (firmware.profile.busy.interval if quirks.busy_interval is None
+                              else quirks.busy_interval)
         self._busy = False
         self._busy_changed = trio.Event()
         self._reports_changed = trio.Event()
-        self._binary = BinaryTransfer(printer, send, self._say)  # M28 B1's file transfer
+        self._binary = BinaryTransfer(printer, send, self._report)  # M28 B1's file transfer
 
     def boot(self) -> None:
-        for line in boot_lines(self.printer, self.reset_reason):
-            self._say(line)
+        self.announce((state("greeting", reason=self.reset_reason, sd=self.printer.sd.mounted),))
 
     def _say(self, text: str) -> None:
         self._send(self.protocol.send(Output(text)))
 
-    def announce(self, lines: Iterable[str]) -> None:
-        """Lines the firmware prints on its own (a fault, a kill)."""
-        for line in lines:
-            self._say(line)
+    def announce(self, statements: Iterable[Statement]) -> None:
+        """What the firmware says on its own (a fault, a kill), in its words."""
+        for statement in statements:
+            for line in self._words.say(statement):
+                self._say(line)
+
+    def _report(self, statement: Statement) -> None:
+        self.announce((statement,))
 
     def block_queue(self, seconds: float, nursery: trio.Nursery) -> None:
         """The command queue stays full for a while: the firmware stops reading its input."""
@@ -143,7 +140,7 @@ class MarlinSession:
         line = self.printer.sd.next_line()
         if line is None:
             self.printer.sd.printing = False
-            self._say("Done printing file")
+            self.announce((state("done_printing_file"),))
             return
         command = parse(line)
         run = self._start(line, command)
@@ -157,7 +154,7 @@ class MarlinSession:
         sd = self.printer.sd
         if sd.saving is not None and not re.match(r"M29(?!\d)", received.text):
             sd.write_line(received.text)  # M28 stores lines instead of running them
-            self._send(self.protocol.send(CommandDone(received.number, room=self._room())))
+            self._send_done(CommandDone(received.number, room=self._room()))
             return
         # ADVANCED_OK's `ok` says the planner's room after the move: it waits for the planning.
         move = None if self.protocol.advanced_ok else plain_move(received.text)
@@ -183,7 +180,10 @@ class MarlinSession:
         arrived: Printer.move_at_once)."""
         self.printer.sd.binary_mode = False  # as for every command (see _run)
         self.journal.record(received.text)
-        self._send(self.protocol.send(PLAIN_OK))  # (plain: not ADVANCED_OK)
+        if self._drop_ok_every:
+            self._send_done(PLAIN_OK)
+        else:
+            self._send(self.protocol.send(PLAIN_OK))  # (plain: not ADVANCED_OK)
         self.protocol.saving_to_sd = self.printer.sd.saving is not None
         self.printer.catch_up()
 
@@ -209,7 +209,7 @@ class MarlinSession:
         # never reaches _done, must not turn the host's next M28 into the binary switch.
         self.printer.sd.binary_mode = False
         self._reports = self._report_settings()
-        return CommandRun(self.printer, text, self.journal, self._say, command)
+        return CommandRun(self.printer, text, self.journal, self._report, command)
 
     async def _finish_waiting(self, command: Command, run: CommandRun, until: float | None) -> Reply:
         self._set_busy(until is not None and command.code not in SELF_REPORTING)
@@ -224,14 +224,37 @@ class MarlinSession:
             self._wake()
             return
         self._protocol_effects(command)
-        self.announce(reply.lines)
-        self._send(
-            self.protocol.send(CommandDone(received.number, self._room(), ok_suffix=reply.ok_suffix))
-        )
+        answer = "" if reply.answer is None else self._words.one_line(reply.answer)
+        done = CommandDone(received.number, self._room(), ok_suffix=answer)
+        quirks = self.firmware.quirks
+        if quirks.broken_m29 and command.code == "M29":
+            done = QUIET_OK  # `Done saving file.` and no `ok`
+        if quirks.ok_before_output:
+            self._send_done(done)
+            self.announce(reply.lines)
+        else:
+            self.announce(reply.lines)
+            self._send_done(done)
         self.protocol.saving_to_sd = self.printer.sd.saving is not None
         if self._report_settings() != self._reports:
             self._reports_changed.set()  # M155, M154, M27 S, or SD printing started
             self._work.set()  # M24: the executor prints from the card
+
+    def _send_done(self, done: CommandDone) -> None:
+        """A command's `ok`, unless the quirk that drops every Nth drops this one."""
+        if self._drop_ok_every and not done.quiet:
+            self._oks += 1
+            if self._oks % self._drop_ok_every == 0:
+                done = QUIET_OK
+        self._send(self.protocol.send(done))
+
+    def quirks_changed(self) -> None:
+        """The firmware's quirks changed (the control channel): from the next line on."""
+        self.protocol.rules = self.firmware.line_rules()
+        self._drop_ok_every = self.firmware.quirks.drop_ok_every
+        if self.firmware.quirks.busy_interval is not None:
+            self.busy_interval = self.firmware.quirks.busy_interval
+            self._busy_changed.set()
 
     def _report_settings(self) -> tuple[object, ...]:
         reports = self.printer.auto_reports
@@ -242,12 +265,13 @@ class MarlinSession:
         """M110, M113, M999 and M28 B1 act on the protocol, not on the printer."""
         if command.code == "M110" and (number := command.value("N")) is not None:
             self.protocol.last_n = int(number)
-        elif command.code == "M113" and command.has("S"):
-            self.busy_interval = max(0.0, min(60.0, command.value("S", 0.0)))
-        elif command.code == "M113":
-            self._say(f"echo:M113 S{self.busy_interval:g}")
+        elif command.code == "M113" and self.firmware.profile.busy.adjustable:
+            if command.has("S"):
+                self.busy_interval = max(0.0, min(60.0, command.value("S", 0.0)))
+            else:
+                self.announce((state("keepalive_interval", seconds=self.busy_interval),))
         elif command.code == "M999":
-            self._say(f"Resend: {self.protocol.last_n + 1}")
+            self._say(self.protocol.rules.resend.format(line=self.protocol.last_n + 1))
         elif command.code == "M28" and self.printer.sd.binary_mode:
             self.printer.sd.binary_mode = False
             self._binary.enter(self.protocol.hand_over())  # read once its `ok` is out
@@ -274,7 +298,7 @@ class MarlinSession:
             now = trio.current_time()
             if self._busy and self.busy_interval > 0 and not self.printer.halted:
                 if now >= next_signal:
-                    self._say("echo:busy: processing")
+                    self.announce((state("busy_processing"),))
                     next_signal = now + self.busy_interval
                 deadline = next_signal
             else:
@@ -303,8 +327,8 @@ class MarlinSession:
 
     def _auto_report(self, kind: str, now: float) -> None:
         if kind == "temperature":
-            self._say(" " + self.printer.temperature_report(now))
+            self.announce((self.printer.temperature_report(now, "auto_temperatures"),))
         elif kind == "position":
-            self._say(self.printer.position_report(now).split(" Count")[0])
+            self.announce((self.printer.position_report(now, "auto_position"),))
         else:  # CardReader::report_status(), file or none: `Not SD printing` while idle
-            self._say(self.printer.sd.status())
+            self.announce((self.printer.sd.status(),))

@@ -14,6 +14,7 @@ from pathlib import Path
 import trio
 
 from fake_marlin.emulator.printer.model import Printer
+from fake_marlin.emulator.printer.statements import Statement, state
 from fake_marlin.emulator.protocols.marlin_binary import (
     BackToAscii,
     FileAborted,
@@ -28,7 +29,8 @@ from fake_marlin.emulator.sessions.base import MachineClock
 
 
 class BinaryTransfer:
-    def __init__(self, printer: Printer, send: Callable[[bytes], None], say: Callable[[str], None]) -> None:
+    def __init__(self, printer: Printer, send: Callable[[bytes], None],
+                 say: Callable[[Statement], None]) -> None:
         self.printer = printer
         self._send = send
         self._say = say
@@ -93,7 +95,7 @@ class BinaryTransfer:
         if isinstance(event, FileAborted) and self._file is not None:
             removed = sd.remove(self._file)
             if removed is not None:
-                self._say(f"File deleted:{removed}")
+                self._say(state("file_deleted", name=removed))
         self._file = None
         sd.reset()  # card.release(): the card is unmounted until the next M21 or OPEN
         sd.mounted = False
@@ -103,16 +105,16 @@ class BinaryTransfer:
         sd = self.printer.sd
         sd.reset()  # card.mount()
         if not sd.mounted:
-            self._say("echo:SD init fail")
+            self._say(state("sd_init_fail"))
             return False
-        self._say("echo:SD card ok")
-        self._say(f"echo:Now fresh file: {name}")
+        self._say(state("sd_ok"))
+        self._say(state("now_fresh_file", name=name))
         opened = sd.open_for_write(name)
         if opened is None:
-            self._say(f"open failed, File: {name}.")
+            self._say(state("open_failed", name=name))
             return False
         self._file, shown = opened
-        self._say(f"Writing to file: {shown}")
+        self._say(state("writing_to_file", name=shown))
         return True
 
     # -- the firmware's timers ---------------------------------------------------------

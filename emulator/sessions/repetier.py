@@ -1,9 +1,10 @@
 """One boot of a printer running Repetier-Firmware: its protocol, its words, its timers.
 
-The printer model is Marlin's; what Repetier prints differently is said here: the boot lines,
-M115 with `REPETIER_PROTOCOL:3`, temperatures as `T:20.00 /0 B:20.00 /0 B@:0 @:0` on a line of
+The words are the repetier profile's (firmware/profiles/repetier.toml): the boot lines, M115
+with `REPETIER_PROTOCOL:3`, temperatures as `T:20.00 /0 B:20.00 /0 B@:0 @:0` on a line of
 their own (the `ok` went out when the command was queued), M114, `TargetExtr0:` and
-`TargetBed:`, `busy:processing` and `busy:heating` keepalives, and `wait` when idle.
+`TargetBed:`, `busy:processing` and `busy:heating` keepalives; the protocol's machine says
+`ok N`, `Resend:`, `skip` and `wait`.
 """
 
 import math
@@ -11,50 +12,17 @@ from collections.abc import Callable, Iterable
 
 import trio
 
+from fake_marlin.emulator.firmware import Firmware
 from fake_marlin.emulator.journal.writer import Journal
 from fake_marlin.emulator.printer.gcode import Command, parse
-from fake_marlin.emulator.printer.model import Printer, Reply
+from fake_marlin.emulator.printer.model import Printer
+from fake_marlin.emulator.printer.statements import Statement, state
 from fake_marlin.emulator.protocols.base import CommandDone, CommandReceived, Output
 from fake_marlin.emulator.protocols.repetier import EmergencyStop, RepetierProtocol
 from fake_marlin.emulator.sessions.base import MachineClock
 from fake_marlin.emulator.sessions.driver import hold_queue_full, run_command
 
-VERSION = "1.0.4"
-KEEP_ALIVE_INTERVAL = 2.0  # Repetier.h's KEEP_ALIVE_INTERVAL, 2000 ms
 HEATING = frozenset({"M109", "M190"})
-
-
-def temperatures(printer: Printer, now: float) -> str:
-    """Commands::printTemperatures(): one line, with T<n> parts when there are several."""
-    active = printer.hotends[printer.active_tool]
-    line = (
-        f"T:{active.temperature(now):.2f} /{active.target:.0f} "
-        f"B:{printer.bed.temperature(now):.2f} /{printer.bed.target:.0f} "
-        f"B@:{printer.bed.power(now)} @:{active.power(now)}"
-    )
-    if len(printer.hotends) > 1:
-        for index, heater in enumerate(printer.hotends):
-            line += f" T{index}:{heater.temperature(now):.2f} /{heater.target:.0f} @{index}:{heater.power(now)}"
-    return line
-
-
-def firmware_info(printer: Printer) -> list[str]:
-    config = printer.config
-    return [
-        f"FIRMWARE_NAME:Repetier_{VERSION} FIRMWARE_URL:https://github.com/repetier/Repetier-Firmware/ "
-        f"PROTOCOL_VERSION:1.0 MACHINE_TYPE:Mendel EXTRUDER_COUNT:{config.extruders} "
-        "REPETIER_PROTOCOL:3",
-        "Cap:PROGRESS:0",
-        "Cap:AUTOREPORT_TEMP:1",
-        f"Cap:EEPROM:{int(config.capability('EEPROM'))}",
-        f"Cap:AUTOLEVEL:{int(config.capability('AUTOLEVEL'))}",
-        f"Cap:Z_PROBE:{int(config.capability('Z_PROBE'))}",
-        "Cap:SOFTWARE_POWER:0",
-        "Cap:TOGGLE_LIGHTS:0",
-        "Cap:PAUSESTOP:1",
-        "Cap:PREHEAT:1",
-        "PrinterMode:FFF",
-    ]
 
 
 class RepetierSession:
@@ -65,8 +33,13 @@ class RepetierSession:
         send: Callable[[bytes], None],
         reset_reason: str = "PowerUp",
         before_command: Callable[[str], None] = lambda text: None,
+        firmware: Firmware | None = None,
     ) -> None:
         self.printer = printer
+        self.firmware = firmware = firmware or Firmware.make("repetier")
+        self._words = firmware.words
+        self._keep_alive_interval = (firmware.profile.busy.interval if firmware.quirks.busy_interval
+                                     is None else firmware.quirks.busy_interval)
         self.journal = journal
         self._send = send
         self.reset_reason = reset_reason.strip()
@@ -85,10 +58,10 @@ class RepetierSession:
 
     def boot(self) -> None:
         self._clock.tell()  # the quiet counts from the boot
-        self.announce(["start", f"Info:{self.reset_reason}", "Free RAM:3412", "SelectExtruder:0"])
+        self.announce((state("greeting", reason=self.reset_reason, sd=self.printer.sd.mounted),))
 
-    def announce(self, lines: Iterable[str]) -> None:
-        for line in lines:
+    def announce(self, statements: Iterable[Statement]) -> None:
+        for line in self._words.lines(statements):
             self._send(self.protocol.send(Output(line)))
 
     def block_queue(self, seconds: float, nursery: trio.Nursery) -> None:
@@ -156,31 +129,11 @@ class RepetierSession:
         finally:
             self._running = None
             self._wake()
-        self.announce(self._words(command, reply))
+        # The `ok` went out when the command was queued: all it says comes after.
+        self.announce(reply.response_data())
 
-    def _on_report(self, text: str) -> None:
-        if self._running is not None and self._running.code in HEATING:
-            text = temperatures(self.printer, trio.current_time())
-        self.announce([text])
-
-    def _words(self, command: Command, reply: Reply) -> list[str]:
-        """What Repetier prints for a command, where it differs from Marlin."""
-        printer, now = self.printer, trio.current_time()
-        if printer.halted:
-            return list(reply.response_data())
-        if command.code == "M105":
-            return [temperatures(printer, now)]
-        if command.code == "M114":
-            x, y, z, e = printer.motion.position
-            return [f"X:{x:.2f} Y:{y:.2f} Z:{z:.3f} E:{e:.4f}"]
-        if command.code == "M115":
-            return firmware_info(printer)
-        if command.code in ("M104", "M109") and command.has("S") and not reply.lines:
-            tool = int(command.value("T", printer.active_tool))
-            return [f"TargetExtr{tool}:{printer.hotends[tool].target:.0f}"]
-        if command.code in ("M140", "M190") and command.has("S"):
-            return [f"TargetBed:{printer.bed.target:.0f}"]
-        return list(reply.response_data())
+    def _on_report(self, statement: Statement) -> None:
+        self.announce((statement,))
 
     # -- what the printer says on its own ----------------------------------------------
     async def _keep_host_alive(self) -> None:
@@ -192,11 +145,12 @@ class RepetierSession:
             running = self._running
             if running is not None and not self.protocol.reading and not self.printer.halted:
                 now = trio.current_time()
-                if now >= last_signal + KEEP_ALIVE_INTERVAL:
-                    kind = "heating" if running.code in HEATING else "processing"
-                    self.announce([f"busy:{kind}"])
+                interval = self._keep_alive_interval
+                if interval > 0 and now >= last_signal + interval:
+                    kind = "busy_heating" if running.code in HEATING else "busy_processing"
+                    self.announce((state(kind),))
                     last_signal = now
-                deadline = last_signal + KEEP_ALIVE_INTERVAL
+                deadline = last_signal + interval if interval > 0 else math.inf
             with trio.move_on_at(deadline):
                 await changed.wait()
 
@@ -210,7 +164,7 @@ class RepetierSession:
             deadline = math.inf
             if interval > 0 and not self.printer.halted:
                 if now >= last + interval:
-                    self.announce([temperatures(self.printer, now)])
+                    self.announce((self.printer.temperature_report(now, "auto_temperatures"),))
                     last = now
                 deadline = last + interval
             with trio.move_on_at(deadline):

@@ -10,6 +10,7 @@ from collections.abc import Callable, Iterable
 
 import trio
 
+from fake_marlin.emulator.printer.statements import Statement
 from fake_marlin.emulator.protocols.avr_memory import BoardMemory
 from fake_marlin.emulator.protocols.stk500 import (
     Bootloader,
@@ -90,7 +91,7 @@ class Stk500Session:
                 self._jump_to_firmware(b"")
         await self.firmware.run()
 
-    def announce(self, lines: Iterable[str]) -> None:
+    def announce(self, statements: Iterable[Statement]) -> None:
         pass  # faults reach a firmware that is not running yet: nothing prints them
 
     def block_queue(self, seconds: float, nursery: trio.Nursery) -> None:

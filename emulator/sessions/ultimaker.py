@@ -6,9 +6,11 @@ from collections.abc import Callable, Iterable
 
 import trio
 
+from fake_marlin.emulator.firmware import Firmware
 from fake_marlin.emulator.journal.writer import Journal
 from fake_marlin.emulator.printer.gcode import plain_move
 from fake_marlin.emulator.printer.model import Printer, Reply
+from fake_marlin.emulator.printer.statements import Statement
 from fake_marlin.emulator.protocols.base import CommandDone, CommandReceived, Output
 from fake_marlin.emulator.protocols.ultimaker import (
     OutOfBand,
@@ -27,8 +29,10 @@ class UltimakerSession:
         send: Callable[[bytes], None],
         queue_size: int = 8,
         before_command: Callable[[str], None] = lambda text: None,
+        firmware: Firmware | None = None,
     ) -> None:
         self.printer = printer
+        self._words = (firmware or Firmware.make()).words
         self.journal = journal
         self._send = send
         self._before_command = before_command
@@ -63,9 +67,9 @@ class UltimakerSession:
             nursery.start_soon(self._execute_commands)
             nursery.start_soon(self._report_room)
 
-    def announce(self, lines: Iterable[str]) -> None:
-        """Lines the firmware prints on its own: errors out of band as `Error:`, the rest as LOG."""
-        for line in lines:
+    def announce(self, statements: Iterable[Statement]) -> None:
+        """What the firmware says on its own: errors out of band as `Error:`, the rest as LOG."""
+        for line in self._words.lines(statements):
             if line.startswith("Error:"):
                 self._send(self.protocol.send(OutOfBand(OutOfBandKind.ERROR, line[len("Error:"):])))
             else:
@@ -120,15 +124,17 @@ class UltimakerSession:
             self._backlog.clear()
             return
         room = self.printer.room(trio.current_time())
-        self._send(self.protocol.send(CommandDone(received.number, room, reply.response_data())))
+        response = tuple(self._words.lines(reply.response_data()))
+        self._send(self.protocol.send(CommandDone(received.number, room, response)))
         if self.protocol.reported_room == 0:
             self._room_may_change.set()  # the room reporter times the `q` for when it opens
 
-    def _respond(self, text: str) -> None:
-        if text.startswith("Error:"):
-            self.announce((text,))
-        else:
-            self._send(self.protocol.send(Output(text)))
+    def _respond(self, statement: Statement) -> None:
+        for text in self._words.say(statement):
+            if text.startswith("Error:"):
+                self._send(self.protocol.send(OutOfBand(OutOfBandKind.ERROR, text[len("Error:"):])))
+            else:
+                self._send(self.protocol.send(Output(text)))
 
     def _update_room(self) -> None:
         self._send(self.protocol.send(RoomChanged(self.printer.room(trio.current_time()))))

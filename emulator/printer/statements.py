@@ -1,0 +1,119 @@
+"""What the printer states: what happened, in no firmware's words.
+
+The model's handlers say what happened (a temperature report, a file opened, an unknown
+command, a halt) as Statements; a firmware profile (emulator/firmware/) says each in that
+firmware's words, from the templates of its profile file, or says nothing where that firmware
+prints nothing. CATALOG is every statement the printer can make, with sample values: a
+profile's templates are checked against it when the profile is loaded, so that a template that
+names a value the statement does not have is an error in the profile, not at run time.
+"""
+
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import NamedTuple
+
+
+@dataclass(frozen=True, slots=True)
+class Statement:
+    """One thing the printer says: `key` names it (a key of CATALOG), `values` fill it in."""
+
+    key: str
+    values: Mapping[str, object] = field(default_factory=dict)
+
+
+def state(key: str, **values: object) -> Statement:
+    return Statement(key, values)
+
+
+class Heat(NamedTuple):
+    """One heater in a temperature report: `{active.actual:.2f}` in a template."""
+
+    label: str  # T0.., B
+    number: int  # the hotend's number (0 for the bed)
+    actual: float
+    target: float
+    power: int  # 0..127, as Marlin's @: shows it
+
+
+_HOTEND = Heat("T0", 0, 21.0, 0.0, 0)
+_BED = Heat("B", 0, 21.0, 0.0, 0)
+_TEMPERATURES: dict[str, object] = {
+    "active": _HOTEND, "bed": _BED, "hotends": (_HOTEND,), "tool": 0,
+}
+
+# key -> sample values. The specials (rendered from a table of their own by the profile, not a
+# single [messages] template) are marked in SPECIAL.
+CATALOG: dict[str, dict[str, object]] = {
+    # -- identity and boot -------------------------------------------------------------
+    "greeting": {"reason": "PowerUp", "sd": True},
+    "firmware_info": {"extruders": 1},
+    # -- reports -----------------------------------------------------------------------
+    "temperatures": _TEMPERATURES,  # M105's answer
+    "auto_temperatures": _TEMPERATURES,  # M155's
+    "heating": {**_TEMPERATURES, "remaining": "?", "heater": "T0"},  # M109/M190 while waiting
+    "position": {"x": 0.0, "y": 0.0, "z": 0.0, "e": 0.0,
+                 "count_x": 0, "count_y": 0, "count_z": 0},  # M114
+    "auto_position": {"x": 0.0, "y": 0.0, "z": 0.0, "e": 0.0},  # M154
+    # -- commands ------------------------------------------------------------------------
+    "hotend_target": {"tool": 0, "target": 200.0},  # M104/M109 S set it
+    "bed_target": {"target": 60.0},  # M140/M190 S
+    "unknown_command": {"command": "M9999"},
+    "invalid_extruder": {"code": "M104", "tool": 3},
+    "invalid_tool": {"tool": 3},
+    "active_extruder": {"tool": 1},
+    "debug_flags": {"flags": "OFF"},
+    "serial_print": {"text": "hello"},
+    "keepalive_interval": {"seconds": 2.0},  # M113 without S
+    "feedrate_percent": {"percent": 100.0},
+    "flow_percent": {"tool": 0, "percent": 100.0},
+    "arc_bad_radius": {},
+    "arc_bad_center": {},
+    "home_first": {"axes": "XYZ"},
+    "probe_point": {"x": 20.0, "y": 20.0, "z": 0.0},
+    "bed_leveling_applied": {},
+    # -- halts and faults ------------------------------------------------------------------
+    "m112_shutdown": {},
+    "thermal_runaway": {"heater": "0"},
+    "mintemp": {"heater": "0"},
+    "maxtemp": {"heater": "0"},
+    "heating_failed": {"heater": "0"},
+    "killed": {},  # after the reason: the printer is halted
+    "action": {"action": "poweroff"},  # a host action command (Marlin's //action:)
+    "firmware_error": {"text": "Something went wrong"},
+    # -- the SD card -----------------------------------------------------------------------
+    "sd_ok": {},
+    "sd_init_fail": {},
+    "sd_released": {},
+    "no_media": {},
+    "file_list_begin": {},
+    "file_list_end": {},
+    "file_entry": {"short": "TEST.GCO", "size": 100, "long": "test.gcode", "stamp": "0x5B2A0000"},
+    "file_entry_long": {"short": "TEST.GCO", "size": 100, "long": "test.gcode",
+                        "stamp": "0x5B2A0000"},
+    "file_entry_time": {"short": "TEST.GCO", "size": 100, "long": "test.gcode",
+                        "stamp": "0x5B2A0000"},
+    "file_entry_long_time": {"short": "TEST.GCO", "size": 100, "long": "test.gcode",
+                             "stamp": "0x5B2A0000"},
+    "open_failed": {"name": "X.GCO"},
+    "file_opened": {"name": "TEST.GCO", "size": 100, "long": "test.gcode"},
+    "file_selected": {},
+    "sd_printing_byte": {"position": 0, "size": 100},
+    "not_sd_printing": {},
+    "done_printing_file": {},
+    "current_file": {"short": "TEST.GCO", "long": "test.gcode"},
+    "no_current_file": {},
+    "now_fresh_file": {"name": "TEST.GCO"},
+    "writing_to_file": {"name": "TEST.GCO"},
+    "done_saving": {},
+    "deletion_failed": {"name": "X.GCO"},
+    "file_deleted": {"name": "TEST.GCO"},
+    "switching_to_binary": {},
+    # -- the session's own lines -----------------------------------------------------------
+    "busy_processing": {},
+    "busy_heating": {},
+    # A line said as it is given (the control channel's `say`), in every firmware.
+    "verbatim": {"text": "//action:pause"},
+}
+
+SPECIAL = frozenset({"greeting", "firmware_info", "temperatures", "auto_temperatures",
+                     "heating", "position", "auto_position", "verbatim"})
