@@ -31,6 +31,7 @@ loop, so that trio's autojump clock runs its simulated time:
             assert printer.journal == job
 """
 
+import dataclasses
 import io
 import json
 import os
@@ -52,7 +53,10 @@ from fake_marlin.emulator.control.client import ControlClient
 from fake_marlin.emulator.faults.layer import FaultConfig
 from fake_marlin.emulator.journal.writer import Journal
 from fake_marlin.emulator.link.memory import HostEnd, MemoryLink
-from fake_marlin.emulator.printer.model import DEFAULT_CAPABILITIES, Printer, PrinterConfig
+from fake_marlin.emulator.firmware import Firmware, load_profile
+from fake_marlin.emulator.firmware.quirks import read_quirks
+from fake_marlin.emulator.printer.model import Printer
+from fake_marlin.emulator.tables import TableReader
 from fake_marlin.emulator.scenario.definition import PrinterSetup, add_fault_table, load
 from fake_marlin.emulator.server.lifecycle import PrinterServer, ServerConfig
 
@@ -291,6 +295,8 @@ class PrinterOptions(TypedDict, total=False):
     """A printer's settings, as `fake-marlin`'s command line takes them."""
 
     protocol: str  # auto (default), marlin, ultimaker, repetier, commstack
+    firmware: str | os.PathLike[str]  # marlin (default), prusa, klipper...; or a profile file
+    quirks: Mapping[str, object]  # the firmware's quirks to switch, e.g. {"ok_before_output": True}
     speed: float  # simulated time runs this many times faster than real time (default 1)
     extruders: int
     sd_dir: str | os.PathLike[str]  # the directory behind the SD card (default: a temporary one)
@@ -331,6 +337,10 @@ def command_line(options: PrinterOptions) -> list[str]:
         "--seed",
         str(options.get("seed", 0)),
     ]
+    if "firmware" in options:
+        args += ["--firmware", os.fspath(options["firmware"])]
+    for name, value in options.get("quirks", {}).items():
+        args += ["--quirk", f"{name}={json.dumps(value)}"]  # JSON's true, 2.5, "x" are TOML's
     if "sd_dir" in options:
         args += ["--sd-dir", os.fspath(options["sd_dir"])]
     if options.get("advanced_ok"):
@@ -416,11 +426,13 @@ class MemoryPrinter:
 
 
 @asynccontextmanager
-async def serve_in_memory(config: ServerConfig, printer: Printer) -> AsyncIterator[MemoryPrinter]:
-    """`printer` served with `config` on an in-memory link, for the length of the block."""
+async def serve_in_memory(config: ServerConfig, printer: Printer,
+                          firmware: Firmware | None = None) -> AsyncIterator[MemoryPrinter]:
+    """`printer` served with `config` on an in-memory link, for the length of the block (as
+    `firmware`, Marlin's without one)."""
     link = MemoryLink()
     journal_text = io.StringIO()
-    server = PrinterServer(link, printer, Journal(journal_text), config)
+    server = PrinterServer(link, printer, Journal(journal_text), config, firmware=firmware)
     async with trio.open_nursery() as nursery:
         await nursery.start(server.run)
         # Power-on completes before any host opens the port, as on a real desk.
@@ -450,20 +462,22 @@ async def memory_printer(**options: Unpack[PrinterOptions]) -> AsyncIterator[Mem
         jitter=options.get("jitter_ms", 0.0) / 1000,
         boot_delay=options.get("boot_delay", 0.0),
         advanced_ok=options.get("advanced_ok", False),
+        firmware=os.fspath(options.get("firmware", "marlin")),
     )
+    if "quirks" in options:
+        profile = load_profile(setup.firmware)
+        setup = dataclasses.replace(setup, quirks=read_quirks(
+            TableReader("quirks", "", dict(options["quirks"])), profile.quirks))
     faults = FaultConfig(seed=options.get("seed", 0))
     if "scenario" in options:
         scenario = load(options["scenario"])
         setup, faults = scenario.printer, scenario.faults
     for number, table in enumerate(options.get("faults", ()), start=1):
         faults = add_fault_table(faults, dict(table), f"faults #{number}")
-    capabilities = dict(DEFAULT_CAPABILITIES)
-    capabilities.update(options.get("capabilities", {}))
+    firmware = setup.make_firmware(seed=faults.seed,
+                                   capabilities=dict(options.get("capabilities", {})))
     with tempfile.TemporaryDirectory(prefix="fake-marlin-sd-") as scratch:
-        config = PrinterConfig(
-            extruders=setup.extruders,
-            sd_dir=Path(options.get("sd_dir", scratch)),
-            capabilities=tuple(capabilities.items()),
-        )
-        async with serve_in_memory(setup.server_config(faults), Printer(config)) as printer:
+        config = firmware.printer_config(setup.extruders, Path(options.get("sd_dir", scratch)))
+        async with serve_in_memory(setup.server_config(faults), Printer(config),
+                                   firmware) as printer:
             yield printer

@@ -2,6 +2,7 @@
 
 import argparse
 import json
+import os
 import sys
 import time
 
@@ -158,6 +159,10 @@ def main(argv: list[str] | None = None) -> int:
         if isinstance(error, KeyboardInterrupt):
             print(f"{start}fake-marlin-host: interrupted", file=sys.stderr)
             return 130
+        if isinstance(error, BrokenPipeError):
+            # Its reader has gone (`| head`): nothing more can be said; as the shell's SIGPIPE.
+            os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+            return 141
         raise
 
 

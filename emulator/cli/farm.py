@@ -11,6 +11,9 @@ scenario's `[printer]` table plus these:
     sd_dir = "sd/{n}"             # the directory behind its SD card (default: a temporary one)
     tcp = "127.0.0.1:9000"        # serve on TCP instead of a pty; a count takes consecutive ports
     rfc2217 = 9100                # or on RFC 2217
+    serial = "CZPX0001X{number:03d}X{letter}{d:05d}"   # its identity (docs/firmwares.md): a
+    machine_name = "Shelf A {number}"                   # template, as the firmware's profile's;
+    uuid = "..."                                        # default: the firmware's, per printer
     [[printer.fault]]             # as a scenario's [[fault]] tables
     kind = "bit-errors"
     ...
@@ -25,6 +28,7 @@ from pathlib import Path
 
 from fake_marlin.emulator.cli.links import Address, tcp_address
 from fake_marlin.emulator.faults.layer import FaultConfig
+from fake_marlin.emulator.firmware.identity import make_identity
 from fake_marlin.emulator.scenario.definition import (
     PrinterSetup,
     ScenarioError,
@@ -36,7 +40,9 @@ from fake_marlin.emulator.scenario.definition import (
 )
 
 MAX_PRINTERS = 10_000  # more than one process can serve; a typo, not a farm
-_FARM_KEYS = ("count", "scenario", "seed", "link", "journal", "sd_dir", "tcp", "rfc2217", "fault")
+_FARM_KEYS = ("count", "scenario", "seed", "link", "journal", "sd_dir", "tcp", "rfc2217", "fault",
+              "uuid", "serial", "machine_name")
+_IDENTITY_KEYS = ("uuid", "serial", "machine_name")
 
 
 class FarmError(ScenarioError):
@@ -55,6 +61,10 @@ class PrinterPlan:
     sd_dir: str | None = None
     tcp: Address | None = None
     rfc2217: Address | None = None
+    # Its identity (firmware/identity.py): templates, None for the firmware's own.
+    uuid: str | None = None
+    serial: str | None = None
+    machine_name: str | None = None
 
 
 def numbered(pattern: str | None, number: int) -> str | None:
@@ -158,7 +168,7 @@ def _entry(path: Path, where: str, entry: dict, first: int) -> list[PrinterPlan]
         faults = dataclasses.replace(faults, seed=seed)
     for number, table in enumerate(own.get("fault", list, []), start=1):
         faults = add_fault_table(faults, table, f"{path}: {where}[[printer.fault]] #{number}")
-    addresses = {}
+    addresses: dict[str, Address] = {}
     for key in ("tcp", "rfc2217"):
         value = own.get(key, (str, int), None)
         if value is not None:
@@ -168,11 +178,23 @@ def _entry(path: Path, where: str, entry: dict, first: int) -> list[PrinterPlan]
                 own.fail(key, str(error))
     if len(addresses) > 1:
         own.fail("rfc2217", "a printer is served on TCP or on RFC 2217, not both")
+    identity = {key: own.get(key, str, None) for key in _IDENTITY_KEYS}
+    for key, template in identity.items():
+        if template is None:
+            continue
+        try:
+            make_identity(0, 1, **{name: identity.get(name) or "" for name in _IDENTITY_KEYS})
+        except (KeyError, ValueError, IndexError) as error:
+            own.fail(key, f"{template!r} is not a template it can fill in: {error!r}")
+        if count > 1 and "{" not in template:
+            own.fail(key, f"{count} printers would share it: make it a template, e.g. with "
+                          "{number}")
     plan = PrinterPlan(
         number=first, setup=setup, faults=faults,
         link=_beside(path, own.get("link", str, None)),
         journal=_beside(path, own.get("journal", str, None)),
         sd_dir=_beside(path, own.get("sd_dir", str, None)), **addresses,
+        uuid=identity["uuid"], serial=identity["serial"], machine_name=identity["machine_name"],
     )
     own.finish()
     if plan.link is not None and (plan.tcp or plan.rfc2217):

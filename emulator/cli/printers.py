@@ -7,6 +7,7 @@ import os
 import signal
 import sys
 import tempfile
+import tomllib
 from pathlib import Path
 
 import trio
@@ -22,7 +23,11 @@ from fake_marlin.emulator.cli.links import (
 )
 from fake_marlin.emulator.link.pty import PtyLink
 from fake_marlin.emulator.link.tcp import TcpLink
-from fake_marlin.emulator.printer.model import DEFAULT_CAPABILITIES, Printer, PrinterConfig
+from fake_marlin.emulator.firmware import load_profile, shipped
+from fake_marlin.emulator.firmware.quirks import NAMES as QUIRK_NAMES
+from fake_marlin.emulator.firmware.quirks import read_quirks
+from fake_marlin.emulator.printer.model import Printer
+from fake_marlin.emulator.tables import TableError, TableReader
 from fake_marlin.emulator.cli.farm import (
     MAX_PRINTERS,
     PrinterPlan,
@@ -96,11 +101,35 @@ def _json_table(text: str) -> dict[str, object]:
     return table
 
 
+def _quirk(text: str) -> tuple[str, object]:
+    name, equals, value = text.partition("=")
+    if name not in QUIRK_NAMES:
+        raise argparse.ArgumentTypeError(f"no quirk {name!r}: one of {', '.join(QUIRK_NAMES)}")
+    if not equals:
+        return name, True
+    try:
+        return name, tomllib.loads(f"value = {value}")["value"]  # 1, 2.5, true, "text"
+    except tomllib.TOMLDecodeError:
+        return name, value  # a bare word: a string (a password)
+
+
 def add_arguments(parser: argparse._ActionsContainer) -> None:
     """The printer's options, on `fake-marlin`'s parser (main.py) or a group of it."""
     parser.add_argument(
+        "--firmware", metavar="NAME|FILE", default="marlin",
+        help="the firmware it is: marlin (default; Marlin 2.1), marlin-1.1, prusa, klipper, "
+        "reprapfirmware, smoothieware, repetier, ultimaker2, or a profile file (FILE.toml, which "
+        "may extend one of them); `--firmware list` lists them. See docs/firmwares.md",
+    )
+    parser.add_argument(
+        "--quirk", action="append", default=[], metavar="NAME[=VALUE]", type=_quirk,
+        help="switch on one of the firmware's quirks (repeatable), e.g. ok_before_output or "
+        "drop_ok_every=50; see docs/firmwares.md for the list",
+    )
+    parser.add_argument(
         "--protocol", choices=PROTOCOLS, default="auto",
-        help="wire protocol; auto (default) decides from each connection's first bytes",
+        help="wire protocol; auto (default) decides from each connection's first bytes, among "
+        "those the firmware speaks",
     )
     parser.add_argument("--link", metavar="PATH", help="also make PATH a symlink to the pty "
                         "(with --printers, a pattern with {n}: /tmp/printer-{n})")
@@ -239,10 +268,22 @@ def _plans(parser: argparse.ArgumentParser, args: argparse.Namespace) -> list[Pr
             return load_farm(args.farm)
         except ScenarioError as error:
             parser.error(f"argument --farm: {error}")
+    try:
+        profile = load_profile(args.firmware)
+        quirks = None
+        if args.quirk:
+            quirks = read_quirks(TableReader("--quirk", "", dict(args.quirk)), profile.quirks)
+    except TableError as error:
+        parser.error(f"argument --firmware: {error}" if not args.quirk or "--quirk" not in str(error)
+                     else f"argument {error}")
+    if args.protocol != "auto" and args.protocol not in profile.protocols:
+        parser.error(f"argument --protocol: firmware {profile.name} speaks "
+                     f"{', '.join(profile.protocols)}, not {args.protocol}")
     setup = PrinterSetup(
         protocol=args.protocol, extruders=args.extruders, boot_delay=args.boot_delay,
         advanced_ok=args.advanced_ok, latency=args.latency_ms / 1000, jitter=args.jitter_ms / 1000,
         baud=args.baud if isinstance(args.baud, int) else None, baud_from_host=args.baud == "host",
+        firmware=args.firmware, quirks=quirks,
     )
     faults = FaultConfig(seed=args.seed)
     if args.scenario:
@@ -310,19 +351,31 @@ class _Running:
             sd_dir = Path(plan.sd_dir)
         else:
             sd_dir = Path(cleanup.enter_context(tempfile.TemporaryDirectory(prefix="fake-marlin-sd-")))
-        config = PrinterConfig(
-            extruders=plan.setup.extruders, sd_dir=sd_dir, capabilities=tuple(capabilities.items())
-        )
+        firmware = plan.setup.make_firmware(plan.number, plan.faults.seed, plan.uuid, plan.serial,
+                                            plan.machine_name, capabilities)
+        config = firmware.printer_config(plan.setup.extruders, sd_dir)
         self.server = PrinterServer(
             self.link, Printer(config), self.journal, plan.setup.server_config(plan.faults),
             memory=flash.memory if flash else None, flash_changed=flash.save if flash else None,
-            trace=trace,
+            trace=trace, firmware=firmware,
         )
+
+
+def list_firmwares() -> int:
+    """`--firmware list`: the shipped profiles, one a line."""
+    for name in shipped():
+        profile = load_profile(name)
+        print(f"{name:<16} {profile.title} ({', '.join(profile.protocols)})")
+    print("\nOr a profile file of your own: --firmware ./my-printer.toml "
+          "(`extends = \"marlin\"` and what differs; docs/firmwares.md)")
+    return 0
 
 
 def run(parser: argparse.ArgumentParser, args: argparse.Namespace) -> int:
     """Serve the printers `args` describe until a signal; `parser` reports what is wrong in
     them (main.py's, with the printer options)."""
+    if args.firmware == "list":
+        return list_firmwares()
     check_link_arguments(parser, args)
     plans = _plans(parser, args)
     try:
@@ -342,8 +395,7 @@ def run(parser: argparse.ArgumentParser, args: argparse.Namespace) -> int:
     # SIGHUP must unwind like Ctrl-C so that the symlinks are removed.
     signal.signal(signal.SIGTERM, _interrupt)
     signal.signal(signal.SIGHUP, _interrupt)
-    capabilities = dict(DEFAULT_CAPABILITIES)
-    capabilities.update(args.capability)
+    capabilities = dict(args.capability)  # over the firmware's own
     with contextlib.ExitStack() as cleanup:
         printers = []
         for plan in plans:

@@ -8,6 +8,10 @@ Each request is one JSON object on a line, each reply one line:
     {"op": "inject", "fault": {"kind": "thermal-runaway"}}   (a [[fault]] table of a scenario;
         without a trigger, a printer fault fires now and a link fault hits the next unit)
     {"op": "say", "text": "//action:pause"}           (the printer prints this line)
+    {"op": "action", "action": "pause"}               (a host action, in the firmware's words:
+        as if its LCD's pause had been pressed)
+    {"op": "quirks", "set": {"ok_before_output": true}}  -> every quirk as it now is (without
+        "set": as it is); the session takes them from its next line
     {"op": "printers"}                                -> [{"printer": 1, "path": ...}, ...]
 In a process serving several printers (--printers, --farm) a request names its printer by
 number, from 1: {"op": "state", "printer": 3}; with one printer the number may be left out.
@@ -17,11 +21,15 @@ A request the channel cannot carry out gets {"ok": false, "error": "..."}; the c
 import json
 import os
 import stat
+from dataclasses import asdict
 
 import trio
 
 from fake_marlin.emulator.faults.rules import LINK_KINDS, FaultRule
+from fake_marlin.emulator.firmware.quirks import describe, read_quirks
 from fake_marlin.emulator.printer import failures
+from fake_marlin.emulator.printer.statements import state
+from fake_marlin.emulator.tables import TableError, TableReader
 from fake_marlin.emulator.scenario.definition import TRIGGER_KEYS, ScenarioError, parse_fault_table
 
 MAX_REQUEST = 64 * 1024
@@ -45,7 +53,7 @@ class Controller:
         handler = getattr(self, "op_" + request["op"], None)
         if handler is None:
             raise ControlError(f"unknown op {request['op']!r}; one of state, set_temperature, "
-                               "set_target, inject, say, printers")
+                               "set_target, inject, say, action, quirks, printers")
         self.server = self._addressed(request)
         return handler(request)
 
@@ -64,7 +72,8 @@ class Controller:
     def op_printers(self) -> list:
         return [
             {"printer": number, "path": getattr(server.link, "path", None),
-             "protocol": server.protocol_name, "boots": server.boots}
+             "protocol": server.protocol_name, "firmware": server.firmware.profile.name,
+             "boots": server.boots, **asdict(server.firmware.identity)}
             for number, server in enumerate(self.servers, start=1)
         ]
 
@@ -75,6 +84,8 @@ class Controller:
         x, y, z, e = printer.motion.position
         return {
             "protocol": server.protocol_name,
+            "firmware": server.firmware.profile.name,
+            "identity": asdict(server.firmware.identity),
             "boots": server.boots,
             "halted": printer.halted,
             "temperatures": {
@@ -127,6 +138,26 @@ class Controller:
         else:
             self.server.faults.add_rule(fault)
         return {}
+
+    def op_action(self, request) -> dict:
+        action = request.get("action")
+        if not isinstance(action, str) or not action or "\n" in action:
+            raise ControlError('"action" must be an action\'s name, e.g. "pause"')
+        self.server.announce((state("action", action=action),))
+        return {}
+
+    def op_quirks(self, request) -> dict:
+        changes = request.get("set", {})
+        if not isinstance(changes, dict):
+            raise ControlError('"set" must be an object of quirk names and values')
+        if changes:
+            try:
+                quirks = read_quirks(TableReader('"set"', "", dict(changes)),
+                                     self.server.firmware.quirks)
+            except TableError as error:
+                raise ControlError(str(error)) from None
+            self.server.set_quirks(quirks)
+        return describe(self.server.firmware.quirks)
 
     def op_say(self, request) -> dict:
         text = request.get("text")

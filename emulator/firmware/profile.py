@@ -61,6 +61,7 @@ class Profile:
     source: str  # where its facts come from (docs/firmwares.md has the details)
     path: str  # the file it was read from (the last of a chain of extends)
     protocols: tuple[str, ...]
+    bootloader: bool  # the STK500v2 bootloader listens first after a reset (AVR boards)
     command_sets: tuple[str, ...]
     unsupported: frozenset[str]
     protocol_words: dict[str, str]  # protocol -> the profile whose words a host of it hears
@@ -177,6 +178,7 @@ def _build(tables: dict[str, Any], path: str) -> Profile:
         source=top.get("source", str, ""),
         path=path,
         protocols=protocols,
+        bootloader=top.get("bootloader", bool, False),
         command_sets=command_sets,
         unsupported=frozenset(code.upper() for code in _strings(top, "unsupported")),
         protocol_words=_protocol_words(top.table_at("protocol_words")),

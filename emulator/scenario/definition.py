@@ -11,6 +11,8 @@ from pathlib import Path
 
 from fake_marlin.emulator.faults.layer import RATE_KINDS, FaultConfig, with_rate
 from fake_marlin.emulator.faults.rules import LINK_KINDS, FaultKind, FaultRule, Trigger
+from fake_marlin.emulator.firmware import Firmware, ProfileError, Quirks, load_profile
+from fake_marlin.emulator.firmware.quirks import read_quirks
 from fake_marlin.emulator.link.conditions import LinkConditions
 from fake_marlin.emulator.server.lifecycle import ServerConfig
 from fake_marlin.emulator import tables
@@ -45,10 +47,20 @@ class PrinterSetup:
     jitter: float = 0.0
     boot_delay: float = 0.0
     advanced_ok: bool = False
+    firmware: str = "marlin"  # a shipped profile's name, or a profile file's path
+    quirks: Quirks | None = None  # None: the profile's own
 
     @property
     def conditions(self) -> LinkConditions:
         return LinkConditions(self.baud, self.latency, self.jitter)
+
+    def make_firmware(self, number: int = 1, seed: int = 0, uuid: str | None = None,
+                      serial: str | None = None, machine_name: str | None = None,
+                      capabilities: dict[str, bool] | None = None) -> Firmware:
+        """Printer `number`'s firmware, as this setup says (its identity from seed and number
+        unless given)."""
+        return Firmware.make(self.firmware, seed, number, self.quirks, uuid, serial,
+                             machine_name, capabilities)
 
     def server_config(self, faults: FaultConfig) -> ServerConfig:
         """The printer server's settings: these, with these faults."""
@@ -130,8 +142,22 @@ def _printer(table: _Reader) -> PrinterSetup:
         table.fail("baud", f"must be a rate such as 250000, or \"host\", not {baud!r}")
     if isinstance(baud, int) and baud <= 0:
         table.fail("baud", "must be positive")
+    firmware = table.get("firmware", str, "marlin")
+    if firmware.endswith(".toml") and not Path(firmware).is_absolute():
+        firmware = str(Path(table.path).parent / firmware)  # beside the file that names it
+    try:
+        profile = load_profile(firmware)
+    except ProfileError as error:
+        table.fail("firmware", str(error))
+    quirks = None
+    if "quirks" in table.table:
+        quirks = read_quirks(table.table_at("quirks"), profile.quirks)
+    protocol = table.get("protocol", str, "auto", PROTOCOLS)
+    if protocol != "auto" and protocol not in profile.protocols:
+        table.fail("protocol", f"firmware {profile.name} speaks {', '.join(profile.protocols)}, "
+                               f"not {protocol}")
     setup = PrinterSetup(
-        protocol=table.get("protocol", str, "auto", PROTOCOLS),
+        protocol=protocol,
         extruders=table.get("extruders", int, 1, minimum=1, maximum=8),
         baud=baud if isinstance(baud, int) else None,
         baud_from_host=baud == "host",
@@ -139,6 +165,8 @@ def _printer(table: _Reader) -> PrinterSetup:
         jitter=table.get("jitter_ms", (int, float), 0, minimum=0) / 1000,
         boot_delay=table.get("boot_delay", (int, float), 0.0, minimum=0),
         advanced_ok=table.get("advanced_ok", bool, False),
+        firmware=firmware,
+        quirks=quirks,
     )
     table.finish()
     return setup

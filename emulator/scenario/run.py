@@ -134,11 +134,12 @@ def run_scenario(scenario: Scenario, trace_path: str | None = None) -> ScenarioR
 async def _run(scenario: Scenario, sd_dir: Path, trace: Trace | None = None) -> ScenarioResult:
     result = ScenarioResult(scenario)
     setup = scenario.printer
-    printer = Printer(PrinterConfig(extruders=setup.extruders, sd_dir=sd_dir))
+    firmware = setup.make_firmware(seed=scenario.faults.seed)
+    printer = Printer(firmware.printer_config(setup.extruders, sd_dir))
     journal_text = io.StringIO()
     link = MemoryLink()
     server = PrinterServer(link, printer, Journal(journal_text), setup.server_config(scenario.faults),
-                           trace=trace)
+                           trace=trace, firmware=firmware)
     options = ClientOptions(
         window=scenario.host.window, timeout=scenario.host.timeout,
         max_transmissions=scenario.host.retries,

@@ -18,7 +18,7 @@ from fake_marlin.emulator.printer.statements import Statement
 from fake_marlin.emulator.protocols.avr_memory import BoardMemory
 from fake_marlin.emulator.sessions.base import Session
 from fake_marlin.emulator.sessions.commstack import CommStackSession
-from fake_marlin.emulator.sessions.detect import DetectingSession
+from fake_marlin.emulator.sessions.detect import Detected, DetectingSession
 from fake_marlin.emulator.sessions.marlin import MarlinSession
 from fake_marlin.emulator.sessions.repetier import RepetierSession
 from fake_marlin.emulator.sessions.stk500 import Stk500Session
@@ -155,14 +155,19 @@ class PrinterServer:
             await session.run()
 
     def _make_session(self, protocol: str, reason: str) -> Session | DetectingSession:
+        profile = self.firmware.profile
+        if protocol == "auto" and len(profile.protocols) == 1 and not profile.bootloader:
+            protocol = profile.protocols[0]  # nothing to tell apart: it speaks at once
         if protocol == "auto":
-            return self._detecting_session(reason)
+            return self._detecting_session(reason, profile.bootloader)
         return self._protocol_session(protocol, reason)
 
     def _detecting_session(self, reason: str, bootloader: bool = True) -> DetectingSession:
         self.faults.set_protocol(None)  # until detection decides, no framer of its own
+        protocols = frozenset(Detected(name) for name in self.firmware.profile.protocols)
         return DetectingSession(
-            lambda detected: self._protocol_session(detected.value, reason), bootloader=bootloader
+            lambda detected: self._protocol_session(detected.value, reason), bootloader=bootloader,
+            protocols=protocols,
         )
 
     def _protocol_session(self, protocol: str, reason: str) -> Session:

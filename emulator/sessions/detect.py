@@ -74,9 +74,12 @@ class DetectingSession:
     once it has handed over, 0x1B is noise to the firmware like any other control byte.
     """
 
-    def __init__(self, make_session: Callable[[Detected], Session], bootloader: bool = True) -> None:
+    def __init__(self, make_session: Callable[[Detected], Session], bootloader: bool = True,
+                 protocols: frozenset[Detected] = frozenset(Detected)) -> None:
         self._make_session = make_session
         self._bootloader = bootloader
+        # The protocols this firmware speaks: bytes of any other are noise to it.
+        self._protocols = protocols
         self._session: Session | None = None
         self._held = b""  # the start of what may be a Repetier command or a CommStack frame
         self._fed = trio.Event()
@@ -99,6 +102,8 @@ class DetectingSession:
             index = 0
             while index < len(data):
                 protocol = classify(data[index], self._bootloader)
+                if protocol not in self._protocols and protocol is not Detected.STK500:
+                    protocol = None
                 if protocol in CONFIRMED_BY:
                     # Control bytes and high bytes are common in noise: only a checksum that
                     # checks out (a Repetier command's, a CommStack header's) decides.
