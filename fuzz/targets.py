@@ -13,6 +13,7 @@ the modules state. `assert` is the check: do not run the fuzzer with `python -O`
 
 import atexit
 import os
+import re
 import shutil
 import tempfile
 import typing
@@ -495,7 +496,8 @@ def gcode_parser(data: bytes) -> None:
     line = data.decode("utf-8", "replace")
     command = gcode.parse(line)
     assert command.text == strip_comment(line)
-    assert command.code == "" or command.code[0] in "GMT", command
+    # No command, a letter's code (G1, M105, T0, Prusa's D3) or a word's (Klipper's STATUS).
+    assert command.code == "" or re.fullmatch(r"[GMTD][\d.]*|[A-Z][A-Z_][A-Z0-9_]*", command.code), command
     for letter, value in command.params.items():
         assert len(letter) == 1 and letter.isupper() and (value is None or isinstance(value, float))
         command.value(letter, 0.0)

@@ -93,11 +93,13 @@ def test_cncjs_runs_a_job_with_a_feed_hold(fake_printer_factory, cncjs, tmp_path
     summary = json.dumps(shown, indent=1)
     assert code == 0 and report["done"] and report["errors"] == [], summary
     # cncjs read the M115 report (its readiness signal) and every other line it has a parser
-    # for; the rest are lines real Marlin sends too: the version banner and the Cap: lines.
+    # for; the rest are lines real Marlin sends too: the version banner, its reset reason, the
+    # prompt_end of its boot (HOST_PROMPT_SUPPORT) and the Cap: lines.
     assert report["settings"]["firmwareName"].startswith("Marlin"), summary
     assert not [line for line in report["read"] if line.startswith("Error:")], summary
     unparsed = report["unparsed"]
-    assert all(re.fullmatch(r"Cap:\w+:[01]|Marlin \S+", line) for line in unparsed), unparsed
+    assert all(re.fullmatch(r"Cap:\w+:[01]|Marlin \S+|PowerUp|External Reset|//action:prompt_end",
+                            line.strip()) for line in unparsed), unparsed
 
     # What cncjs wrote to the port, write by write: whole bare lines, no `N<n> ... *<checksum>`.
     written = [entry["data"] for entry in report["trace"]]

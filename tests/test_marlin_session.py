@@ -30,8 +30,8 @@ async def marlin(tmp_path=None, **config):
 async def test_boot_greets_once_per_open_and_never_otherwise(autojump_clock):
     async with running_printer(ServerConfig(protocol="marlin")) as running:
         terminal = Terminal(running.link.open_host())
-        boot = await terminal.read_until(lambda line: line.startswith("echo:V86"))
-        assert boot[0] == "start" and boot[1] == "echo: External Reset"
+        boot = await terminal.read_until(lambda line: line.startswith("echo:V88"))
+        assert boot[0] == "start" and boot[1] == " External Reset"
         assert boot[2].startswith("Marlin 2.")
         await terminal.command("G28")
         later = await terminal.quiet_for(30)
@@ -118,7 +118,7 @@ async def test_m112_halts_until_the_port_is_reopened(autojump_clock):
         await terminal.send("M105")
         assert await terminal.quiet_for(5) == []
         fresh = Terminal(running.link.open_host())
-        await fresh.read_until(lambda line: line.startswith("echo:V86"))
+        await fresh.read_until(lambda line: line == "//action:prompt_end")  # the greeting's end
         assert await fresh.command("M105") == [f"ok {TEMPERATURES}"]
 
 

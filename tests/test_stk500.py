@@ -440,7 +440,7 @@ async def test_old_curas_probe_then_m105_meets_the_firmware(autojump_clock):
         assert await terminal.quiet_for(1) == []  # the greeting waits for the firmware's protocol
         assert running.server.protocol_name is None
         lines = await terminal.command("M105")
-        assert lines[0] == "start" and lines[1] == "echo: External Reset"
+        assert lines[0] == "start" and lines[1] == " External Reset"
         assert lines[-1] == f"ok {TEMPERATURES}"
         assert running.server.protocol_name == "marlin"
         assert running.journal == ["M105"]

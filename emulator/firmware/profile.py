@@ -47,11 +47,13 @@ class Busy:
 class Halt:
     """What a halted printer (after M112, a thermal error) does until it is reset."""
 
-    reads: bool = False  # False: it reads nothing at all (Marlin's kill()); True: it answers
-    answer: tuple[str, ...] = ()  # what it prints for a command it does not run, before `ok`
+    # False: it reads nothing at all (Marlin's kill()); True: it answers each command with the
+    # halted_refusal statement and `ok`, but for these:
+    reads: bool = False
     still_runs: frozenset[str] = frozenset()  # commands it runs all the same (M105, STATUS)
     revive: frozenset[str] = frozenset()  # commands that reset it (FIRMWARE_RESTART)
     clear: frozenset[str] = frozenset()  # commands that end the halt without a reset (M999)
+    reboot_after: float = 0.0  # seconds after which it resets itself (a watchdog); 0: never
 
 
 @dataclass(frozen=True)
@@ -62,6 +64,9 @@ class Profile:
     path: str  # the file it was read from (the last of a chain of extends)
     protocols: tuple[str, ...]
     bootloader: bool  # the STK500v2 bootloader listens first after a reset (AVR boards)
+    # A host opening the port resets the board (DTR, on boards with a USB-serial chip); False:
+    # the firmware runs on, and says `connected` (native USB, Klipper's pty).
+    reset_on_open: bool
     command_sets: tuple[str, ...]
     unsupported: frozenset[str]
     protocol_words: dict[str, str]  # protocol -> the profile whose words a host of it hears
@@ -179,6 +184,7 @@ def _build(tables: dict[str, Any], path: str) -> Profile:
         path=path,
         protocols=protocols,
         bootloader=top.get("bootloader", bool, False),
+        reset_on_open=top.get("reset_on_open", bool, True),
         command_sets=command_sets,
         unsupported=frozenset(code.upper() for code in _strings(top, "unsupported")),
         protocol_words=_protocol_words(top.table_at("protocol_words")),
@@ -257,10 +263,10 @@ def _halt(table: _Reader) -> Halt:
 
     halt = Halt(
         reads=table.get("reads", bool, False),
-        answer=_strings(table, "answer"),
         still_runs=codes("still_runs"),
         revive=codes("revive"),
         clear=codes("clear"),
+        reboot_after=float(table.get("reboot_after", (int, float), 0.0, minimum=0)),
     )
     table.finish()
     return halt
@@ -269,7 +275,7 @@ def _halt(table: _Reader) -> Halt:
 # Tables of their own for the statements that take more than one template (SPECIAL), each
 # with the templates it must or may have.
 _SPECIAL_TABLES: dict[str, tuple[str, ...]] = {
-    "greeting": ("lines", "sd"),
+    "greeting": ("lines", "sd", "after?"),
     "firmware_info": ("lines", "capability", "after?"),  # ?: may be left out (none)
     "temperatures": ("one", "several", "each", "each_power", "auto", "heating"),
     "position": ("report", "auto"),
@@ -283,6 +289,7 @@ def _special_samples() -> dict[tuple[str, str], dict[str, object]]:
     whole = {"each": "T0:21.00 /0.00", "each_power": "@0:0"}
     return {
         ("greeting", "lines"): CATALOG["greeting"], ("greeting", "sd"): CATALOG["greeting"],
+        ("greeting", "after"): CATALOG["greeting"],
         ("firmware_info", "lines"): CATALOG["firmware_info"],
         ("firmware_info", "capability"): {"name": "EEPROM", "value": 1},
         ("firmware_info", "after"): CATALOG["firmware_info"],

@@ -73,7 +73,7 @@ class Words:
         lines = self._fill(greeting["lines"], values)
         if values.get("sd"):
             lines += self._fill(greeting["sd"], values)
-        return lines
+        return lines + self._fill(greeting["after"], values)
 
     def _firmware_info(self, values: Any) -> list[str]:
         info = self._templates["firmware_info"]

@@ -38,13 +38,19 @@ class Command:
 # number): a line whose first character is anything else is an unknown command, however much
 # G-code follows. (A damaged leading N makes such a line, `\x0e1190 G1 X35 ...`: it must not move.)
 _COMMAND_START = re.compile(r"\s*(?:N-?\d+\s*)?(?=[A-Za-z])")
+# A command that is a word, not a letter and a number: Klipper's extended commands
+# (`FIRMWARE_RESTART`, `SET_HEATER_TEMPERATURE HEATER=extruder`), Prusa's `PRUSA Fir`. Its code
+# is the word, upper case; its arguments are its handler's to read (string_argument).
+_WORD_COMMAND = re.compile(r"[A-Za-z][A-Za-z_][A-Za-z0-9_]*(?![.\d])")
 
 
 def parse(line: str) -> Command:
     text = strip_comment(line)
     start = _COMMAND_START.match(text)
+    if start and (word := _WORD_COMMAND.match(text, start.end())):
+        return Command(text, word[0].upper(), {})
     words = WORD.findall(text, start.end()) if start else []
-    if not words or words[0][0].upper() not in "GMT" or (words[0][0].upper() != "T" and not words[0][1]):
+    if not words or words[0][0].upper() not in "GMTD" or (words[0][0].upper() != "T" and not words[0][1]):
         return Command(text, "", {})
     letter, number = words[0]
     code = letter.upper() + _integer_text(number)

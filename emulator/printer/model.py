@@ -15,7 +15,16 @@ from collections.abc import Generator
 from dataclasses import dataclass
 from pathlib import Path
 
-from fake_marlin.emulator.printer import heating, motion, sdcard, system
+from fake_marlin.emulator.printer import (
+    heating,
+    klipper,
+    motion,
+    prusa,
+    reprapfirmware,
+    sdcard,
+    smoothieware,
+    system,
+)
 from fake_marlin.emulator.printer.gcode import Command, PlainMove, parse
 from fake_marlin.emulator.printer.motion import Limits, MotionState
 from fake_marlin.emulator.printer.planner import MAX_MOVES, Planner
@@ -93,7 +102,14 @@ class AutoReports:
 
 
 HANDLERS = {**motion.HANDLERS, **heating.HANDLERS, **sdcard.HANDLERS, **system.HANDLERS}
-COMMAND_SETS: dict[str, dict] = {"marlin": HANDLERS}
+# A profile's command_sets name these, in order: a later set's handler replaces an earlier's.
+COMMAND_SETS: dict[str, dict] = {
+    "marlin": HANDLERS,
+    "prusa": prusa.HANDLERS,
+    "klipper": klipper.HANDLERS,
+    "reprapfirmware": reprapfirmware.HANDLERS,
+    "smoothieware": smoothieware.HANDLERS,
+}
 
 
 def handlers_for(config: "PrinterConfig") -> dict:
@@ -232,6 +248,11 @@ class Printer:
         if self.config.capability("HOST_ACTION_COMMANDS"):
             lines.append(state("action", action="poweroff"))
         return tuple(lines)
+
+    def clear_halt(self) -> None:
+        """M999 where a firmware has it (Smoothieware, Repetier): running again, heaters off
+        as the halt left them, without a reset."""
+        self.halted = False
 
     def temperature_report(self, now: float, key: str = "temperatures") -> Statement:
         return heating.temperature_report(self, now, key=key)

@@ -78,6 +78,10 @@ CATALOG: dict[str, dict[str, object]] = {
     "maxtemp": {"heater": "0"},
     "heating_failed": {"heater": "0"},
     "killed": {},  # after the reason: the printer is halted
+    "halted_refusal": {"command": "G28"},  # a command a halted printer does not run
+    "halt_cleared": {},  # M999 (Smoothieware, Repetier): running again, without a reset
+    "restarting": {},  # FIRMWARE_RESTART: said as the firmware goes down
+    "connected": {},  # a host opened the port and the board did not reset (Smoothieware's hello)
     "action": {"action": "poweroff"},  # a host action command (Marlin's //action:)
     "firmware_error": {"text": "Something went wrong"},
     # -- the SD card -----------------------------------------------------------------------

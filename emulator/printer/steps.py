@@ -24,6 +24,9 @@ class Reply:
     # The command's answer where the firmware may put it on its `ok` line (M105's temperatures,
     # `ok T:21.00 /0.00 ...` in Marlin's words): the firmware's profile says where it goes.
     answer: Statement | None = None
+    # What the command does to the firmware itself once its `ok` is out: "restart"
+    # (Klipper's FIRMWARE_RESTART, RESTART).
+    effect: str | None = None
 
     def response_data(self) -> tuple[Statement, ...]:
         """Everything the command stated (for protocols without `ok` lines)."""

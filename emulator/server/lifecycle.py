@@ -14,7 +14,7 @@ from fake_marlin.emulator.link.base import HostOpened, Link
 from fake_marlin.emulator.link.conditions import LinkConditions, Pipe
 from fake_marlin.emulator.printer import failures
 from fake_marlin.emulator.printer.model import Printer
-from fake_marlin.emulator.printer.statements import Statement
+from fake_marlin.emulator.printer.statements import Statement, state
 from fake_marlin.emulator.protocols.avr_memory import BoardMemory
 from fake_marlin.emulator.sessions.base import Session
 from fake_marlin.emulator.sessions.commstack import CommStackSession
@@ -122,9 +122,12 @@ class PrinterServer:
             item = await self.link.receive()
             if isinstance(item, HostOpened):
                 self._new_connection()
-                # The host's open resets the board, as DTR does on a real one; what the host
-                # sends next is read by the new boot.
-                await self._restart(" External Reset")
+                if self.firmware.profile.reset_on_open:
+                    # The host's open resets the board, as DTR does on a real one; what the
+                    # host sends next is read by the new boot.
+                    await self._restart(" External Reset")
+                else:  # native USB, Klipper's pty: the firmware runs on
+                    self.announce((state("connected"),))
             elif self.faults.quiet_to_printer and self._to_printer.passes_through:
                 self._feed_session(item)  # the common case: straight to the session
                 # ...and while trio has nothing else due, the host's next bytes too, read here
@@ -189,7 +192,7 @@ class PrinterServer:
         if protocol == "marlin":
             return MarlinSession(
                 self.printer, self.journal, self._send, self.config.advanced_ok, reason,
-                self._before_command, firmware,
+                self._before_command, firmware, self._restarts_in.send_nowait,
             )
         if protocol == "ultimaker":
             return UltimakerSession(

@@ -32,8 +32,10 @@ class MarlinSession:
         reset_reason: str = "PowerUp",
         before_command: Callable[[str], None] = lambda text: None,
         firmware: Firmware | None = None,
+        restart: Callable[[str], None] = lambda reason: None,
     ) -> None:
         self.printer = printer
+        self._restart = restart  # the server's: reset the board now, for this reason
         self.journal = journal
         self._send = send
         self.reset_reason = reset_reason
@@ -47,6 +49,7 @@ class MarlinSession:
         self._waiting: tuple[CommandReceived, Command, CommandRun, float] | None = None
         self._executor_idle = False  # until the executor task runs
         self._work = trio.Event()
+        self._halt_changed = trio.Event()
         self._reports: tuple[object, ...] = ()
         quirks = firmware.quirks
         self.busy_interval = (firmware.profile.busy.interval if quirks.busy_interval is None
@@ -77,7 +80,9 @@ class MarlinSession:
 
     def feed(self, data: bytes) -> None:
         if self.printer.halted:
-            return  # a killed printer reads nothing until it is reset
+            if self.firmware.profile.halt.reads:
+                self._feed_halted(data)
+            return  # a killed Marlin reads nothing until it is reset
         binary = self._binary
         if binary.protocol is not None and binary.active:  # (None: no M28 B1 this boot)
             data = binary.feed(data)  # what follows is ASCII again, if anything
@@ -105,9 +110,60 @@ class MarlinSession:
         self._busy_changed.set()
         self._reports_changed.set()
         self._work.set()
+        self._halt_changed.set()
+
+    # -- halted ------------------------------------------------------------------------
+    def _feed_halted(self, data: bytes) -> None:
+        """A halted firmware that still reads (Klipper, Smoothieware): each command gets its
+        refusal and `ok`, but for those its profile says it still runs, or that end the halt."""
+        self.protocol.receive_data(data)
+        while (event := self.protocol.next_event()) is not None:
+            if isinstance(event, CommandReceived):
+                self._answer_halted(event)
+                if not self.printer.halted:  # M999: what follows runs as usual
+                    rest = self.protocol.data_to_send()
+                    self._send(rest)
+                    self.feed(b"")
+                    return
+        self._send(self.protocol.data_to_send())
+
+    def _answer_halted(self, received: CommandReceived) -> None:
+        halt = self.firmware.profile.halt
+        command = parse(received.text)
+        if command.code in halt.revive:
+            self.journal.record(received.text)
+            self._send_done(PLAIN_OK)
+            self.announce((state("restarting"),))
+            self._restart(command.code)
+        elif command.code in halt.clear:
+            self.printer.clear_halt()
+            self._wake()
+            self._run_here(received)  # it runs, as the first command of the running printer
+        elif command.code in halt.still_runs:
+            run = self._run(received.text, command)
+            if run.advance() is None:  # (a command that would wait does not, halted)
+                self._say_done(received, command, run.reply)
+            else:
+                run.abandon()
+                self._send_done(PLAIN_OK)
+        else:
+            self.announce((state("halted_refusal", command=received.text),))
+            self._send_done(PLAIN_OK)
+
+    async def _when_halted(self) -> None:
+        """A firmware whose watchdog resets it a while after a kill (Prusa's M112)."""
+        delay = self.firmware.profile.halt.reboot_after
+        while delay > 0:
+            changed = self._halt_changed = trio.Event()
+            if self.printer.halted:
+                await trio.sleep(delay)
+                self._restart(" Watchdog Reset")
+                return
+            await changed.wait()
 
     async def run(self) -> None:
         async with trio.open_nursery() as nursery:
+            nursery.start_soon(self._when_halted)
             nursery.start_soon(self._execute_commands)
             nursery.start_soon(self._keep_host_alive)
             nursery.start_soon(self._send_auto_reports)
@@ -118,8 +174,15 @@ class MarlinSession:
     # carries it on, and the commands behind it wait in the backlog, in order.
     async def _execute_commands(self) -> None:
         sd = self.printer.sd
-        while not self.printer.halted:
-            if self._waiting is not None:
+        while True:
+            if self.printer.halted:
+                # Until M999 clears it, where the firmware has one; else until the reset.
+                self._waiting = None
+                self._backlog.clear()
+                self._executor_idle = True
+                changed = self._halt_changed = trio.Event()
+                await changed.wait()
+            elif self._waiting is not None:
                 received, command, run, until = self._waiting
                 self._waiting = None
                 await self._carry_on(received, command, run, until)
@@ -134,7 +197,6 @@ class MarlinSession:
                 self._executor_idle = True
                 work = self._work = trio.Event()
                 await work.wait()
-        await trio.sleep_forever()
 
     async def _run_from_sd(self) -> None:
         line = self.printer.sd.next_line()
@@ -224,6 +286,18 @@ class MarlinSession:
             self._wake()
             return
         self._protocol_effects(command)
+        self._say_done(received, command, reply)
+        if reply.effect == "restart":  # FIRMWARE_RESTART, RESTART: its `ok` is out
+            self.announce((state("restarting"),))
+            self._restart(command.code)
+            return
+        self.protocol.saving_to_sd = self.printer.sd.saving is not None
+        if self._report_settings() != self._reports:
+            self._reports_changed.set()  # M155, M154, M27 S, or SD printing started
+            self._work.set()  # M24: the executor prints from the card
+
+    def _say_done(self, received: CommandReceived, command: Command, reply: Reply) -> None:
+        """What the command printed and its `ok`, in the order and form the firmware has."""
         answer = "" if reply.answer is None else self._words.one_line(reply.answer)
         done = CommandDone(received.number, self._room(), ok_suffix=answer)
         quirks = self.firmware.quirks
@@ -235,10 +309,6 @@ class MarlinSession:
         else:
             self.announce(reply.lines)
             self._send_done(done)
-        self.protocol.saving_to_sd = self.printer.sd.saving is not None
-        if self._report_settings() != self._reports:
-            self._reports_changed.set()  # M155, M154, M27 S, or SD printing started
-            self._work.set()  # M24: the executor prints from the card
 
     def _send_done(self, done: CommandDone) -> None:
         """A command's `ok`, unless the quirk that drops every Nth drops this one."""

@@ -144,8 +144,8 @@ _LAST_LINE = re.compile(r"last\s*line:?\s*(-?\d+)", re.IGNORECASE)
 _BUSY = re.compile(r"(?:echo:)?\s*busy:", re.IGNORECASE)
 _TEMPERATURE = re.compile(r"\s*(?:T\d*|B|C):\s*-?\d")
 _POSITION_REPORT = re.compile(r"X:\S+ Y:\S+ Z:\S+ E:\S+")  # M154's; M114 adds " Count ..."
-_RESET_REASON = re.compile(  # Marlin says it after `echo:`, Repetier after `Info:`
-    r"(?:echo|Info):\s*"
+_RESET_REASON = re.compile(  # Marlin 2.1 says it alone, 1.1 after `echo:`, Repetier after `Info:`
+    r"(?:(?:echo|Info):)?\s*"
     r"(?:PowerUp|External Reset|Brown out Reset|Watchdog Reset|Software Reset)\s*$"
 )
 # OctoPrint's words for a line error, and Marlin's three.

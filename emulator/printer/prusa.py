@@ -1,0 +1,7 @@
+"""The commands of prusa that Marlin does not have (its profile's command set "prusa").
+
+Each handler is `handler(printer, command, now) -> Reply | Step`, as in the other modules: it
+states what happened (printer/statements.py); the profile says it in the firmware's words.
+"""
+
+HANDLERS: dict = {}
