@@ -19,6 +19,7 @@ from typing import Any
 
 from fake_marlin.emulator.firmware.identity import SAMPLE_VALUES
 from fake_marlin.emulator.firmware.quirks import Quirks, read_quirks
+from fake_marlin.emulator.printer.model import SET_STATEMENTS
 from fake_marlin.emulator.printer.statements import CATALOG, SPECIAL
 from fake_marlin.emulator.protocols.marlin import LineRules
 from fake_marlin.emulator.tables import TableError, TableReader
@@ -198,7 +199,7 @@ def _build(tables: dict[str, Any], path: str) -> Profile:
         lines=_line_rules(top.table_at("lines")),
         busy=_busy(top.table_at("busy")),
         halt=_halt(top.table_at("halt")),
-        templates=_templates(top),
+        templates=_templates(top, command_sets),
         quirks=read_quirks(top.table_at("quirks"), Quirks()),
     )
     identity.finish()
@@ -302,11 +303,15 @@ def _special_samples() -> dict[tuple[str, str], dict[str, object]]:
     }
 
 
-def _templates(top: _Reader) -> dict[str, Any]:
-    """Every statement's template(s), each checked with its statement's sample values."""
+def _templates(top: _Reader, command_sets: tuple[str, ...]) -> dict[str, Any]:
+    """Every statement's template(s), each checked with its statement's sample values: those
+    of printer/statements.py, and those of the profile's command sets."""
     templates: dict[str, Any] = {}
     messages = top.table_at("messages")
-    for key in CATALOG:
+    catalog = dict(CATALOG)
+    for command_set in command_sets:
+        catalog.update(SET_STATEMENTS[command_set])
+    for key in catalog:
         if key in SPECIAL:
             continue
         value = messages.get(key, (str, list), None)
@@ -314,7 +319,7 @@ def _templates(top: _Reader) -> dict[str, Any]:
             messages.fail(key, "is missing: every statement needs its words (\"\" for none)")
         lines = (value,) if isinstance(value, str) else _strings(messages, key)
         for line in lines:
-            _check(messages, key, line, {**SAMPLE_CONTEXT, **CATALOG[key]})
+            _check(messages, key, line, {**SAMPLE_CONTEXT, **catalog[key]})
         templates[key] = lines
     messages.finish()
     for table_name, keys in _SPECIAL_TABLES.items():

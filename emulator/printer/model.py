@@ -112,6 +112,16 @@ COMMAND_SETS: dict[str, dict] = {
 }
 
 
+# What each set's handlers state beyond printer/statements.py's CATALOG (each set's STATEMENTS).
+SET_STATEMENTS: dict[str, dict[str, dict[str, object]]] = {
+    "marlin": {},
+    "prusa": prusa.STATEMENTS,
+    "klipper": klipper.STATEMENTS,
+    "reprapfirmware": reprapfirmware.STATEMENTS,
+    "smoothieware": smoothieware.STATEMENTS,
+}
+
+
 def handlers_for(config: "PrinterConfig") -> dict:
     """The dispatch table of a firmware: its command sets, later ones over earlier ones,
     without what it does not know."""
@@ -129,6 +139,11 @@ class Printer:
     def __init__(self, config: PrinterConfig | None = None, now: float = 0.0) -> None:
         self.config = config or PrinterConfig()
         self.handlers = handlers_for(self.config)
+        # A command set's own state, by its name (Prusa's EEPROM bytes, RepRapFirmware's
+        # machine name): it outlives resets, as the board does; a set that forgets its state
+        # at a reset keeps the boot it belongs to (`boots`) beside it.
+        self.extensions: dict[str, object] = {}
+        self.boots = 0
         self._planner = Planner()
         self._unplanned: list[tuple[PlainMove, float]] = []  # see move_at_once()
         self.hotends = [Heater(HOTEND, now) for _ in range(self.config.extruders)]
@@ -138,6 +153,7 @@ class Printer:
 
     def reset(self, now: float) -> None:
         """A reset: motion, modes and heater targets forgotten; the heaters stay as hot as they are."""
+        self.boots = getattr(self, "boots", 0) + 1
         self._unplanned.clear()  # as good as planned and cleared: motion starts afresh
         self._planner.clear()
         self._motion = MotionState(feedrate=self.config.default_feedrate)
