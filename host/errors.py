@@ -29,6 +29,10 @@ class PrinterHalted(RemoteError):
     """The firmware stopped itself (kill(): M112, thermal runaway, ...) until it is reset."""
 
 
+class PrinterLocked(RemoteError):
+    """The printer refuses every command until it is unlocked (M511 P<password>)."""
+
+
 class UsageError(HostError):
     """The caller asked for something that cannot be done."""
 

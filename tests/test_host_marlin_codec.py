@@ -84,6 +84,9 @@ TEMPERATURES = "T:21.00 /0.00 B:21.00 /0.00 @:0 B@:0"
         ("start", Line(LineKind.START, "start")),
         ("echo: External Reset", Line(LineKind.START, "echo: External Reset")),
         ("echo:PowerUp", Line(LineKind.START, "echo:PowerUp")),
+        (" External Reset", Line(LineKind.START, " External Reset")),  # Marlin 2.1: no echo:
+        ("echo:Printer locked! (Unlock with M511 or LCD)",
+         Line(LineKind.LOCKED, "echo:Printer locked! (Unlock with M511 or LCD)")),
         ('echo:Unknown command: "M9999"', Line(LineKind.ECHO, 'echo:Unknown command: "M9999"')),
         ("//action:poweroff", Line(LineKind.ACTION, "//action:poweroff")),
         (TEMPERATURES, Line(LineKind.REPORT, TEMPERATURES)),

@@ -10,7 +10,7 @@ from fake_marlin.emulator.journal.verify import Kind, verify
 from fake_marlin.emulator.server.lifecycle import ServerConfig
 from fake_marlin.host.codecs.marlin import PROBE, LineKind, Ok, encode_line, xor_checksum
 from fake_marlin.host.connect import connect
-from fake_marlin.host.cores.marlin import MarlinCore
+from fake_marlin.host.cores.marlin import HELLO, MarlinCore
 from fake_marlin.host.errors import CommandError, PrinterHalted, PrinterNotResponding, PrinterReset
 from fake_marlin.host.shell import ClientOptions
 from tests.conftest import running_printer
@@ -506,7 +506,8 @@ def probes_until_given_up(sender: MarlinCore, answer_probe) -> int:
     with pytest.raises(PrinterNotResponding, match="no believable answer"):
         while probes < 1000:
             for data in sender.poll(now):
-                assert data == PROBE
+                # (and once a plain M105, to a printer silent from the start: the test below)
+                assert data in (PROBE, HELLO)
                 probes += 1
                 answer_probe(sender, now + 0.01)
             deadline = sender.next_deadline()
@@ -547,3 +548,71 @@ def test_a_printer_that_counts_less_than_it_accepted_restarted():
             for data in sender.poll(now):
                 if data == PROBE:
                     answer(sender, counts.pop() if counts else 0, now + 0.01)
+
+
+def unprobeable_sender() -> MarlinCore:
+    """A printer that takes the probe for a command (Klipper: `ok` to the M105 in it), twice:
+    the sender takes it for one that checks no line numbers, and says M110 N0 once."""
+    sender = MarlinCore()
+    now = 0.0
+    for _ in range(2):
+        assert sender.poll(now) == [PROBE]
+        sender.on_ok(Ok("T:21.0 /0.0"), ("T:21.0 /0.0",), now + 0.01)
+        now = sender.next_deadline()
+    assert sender.poll(now) == [b"N0 M110 N0*125\n"] and sender.unchecked
+    sender.on_ok(Ok(), (), now + 0.01)
+    return sender
+
+
+def test_a_printer_that_checks_no_line_numbers_gets_them_one_in_flight_and_never_twice():
+    sender = unprobeable_sender()
+    sender.submit("G28")
+    sender.submit("G1 X1")
+    assert sender.poll(10.0) == [encode_line(1, "G28")]
+    sender.on_ok(Ok(), (), 10.1)
+    assert sender.poll(10.2) == [encode_line(2, "G1 X1")]
+    # Its ok never comes: nothing can tell whether it arrived, so it is not sent again.
+    deadline = sender.next_deadline()
+    assert sender.poll(deadline) == [] and sender.idle
+    assert [t.confirmed for t in sender.take_completed()] == [True, False]
+    assert sender.stats.unconfirmed == 1 and sender.stats.resends == 0
+
+
+def test_a_resend_request_of_an_unprobeable_printer_sends_the_line_it_names():
+    sender = unprobeable_sender()
+    for number, command in enumerate(["G28", "G1 X1", "G1 X2"], 1):
+        sender.submit(command)
+        assert sender.poll(float(number)) == [encode_line(number, command)]
+        if number < 3:
+            sender.on_ok(Ok(), (), number + 0.1)
+    sender.on_resend(2, 3.1)  # Smoothieware's `rs N2`: line 2 again, then 3
+    assert sender.poll(3.2) == [encode_line(2, "G1 X1")]
+    sender.on_ok(Ok(), (), 3.3)
+    assert sender.poll(3.4) == [encode_line(3, "G1 X2")]
+
+
+def _ascii_firmwares() -> list[str]:
+    from fake_marlin.emulator.firmware import load_profile, shipped
+
+    return [name for name in shipped() if "marlin" in load_profile(name).protocols]
+
+
+@pytest.mark.parametrize("firmware, quirks", [
+    ("marlin", {"unchecked_line_numbers": True}),
+    *((name, {}) for name in _ascii_firmwares()),
+])
+async def test_our_host_prints_exactly_once_to_every_ascii_firmware(
+        autojump_clock, firmware, quirks):
+    from fake_marlin.emulator.firmware import Firmware, Quirks, load_profile
+    from fake_marlin.emulator.printer.model import Printer
+    from fake_marlin.testing import serve_in_memory
+
+    profile = load_profile(firmware)
+    made = Firmware.make(profile, quirks=Quirks(**{**profile.quirks.__dict__, **quirks}))
+    printer = Printer(made.printer_config())
+    async with serve_in_memory(ServerConfig(protocol="marlin"), printer, made) as running:
+        async with connect(running.open(), "marlin") as host:
+            summary = await host.print_commands(JOB[:50], lambda done: None)
+        assert summary.unconfirmed == 0 and summary.commands == 50
+        verdict = verify(list(enumerate(JOB[:50], 1)), running.journal)
+        assert verdict.passed(), verdict.problems

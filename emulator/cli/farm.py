@@ -9,6 +9,7 @@ scenario's `[printer]` table plus these:
     link = "/tmp/printer-{n}"     # a symlink to its pty; {n} is the printer's number, from 1
     journal = "logs/{n}.log"      # append each executed command here
     sd_dir = "sd/{n}"             # the directory behind its SD card (default: a temporary one)
+    eeprom_file = "eeprom/{n}.json"  # where M500 keeps its settings (default: in memory)
     tcp = "127.0.0.1:9000"        # serve on TCP instead of a pty; a count takes consecutive ports
     rfc2217 = 9100                # or on RFC 2217
     serial = "CZPX0001X{number:03d}X{letter}{d:05d}"   # its identity (docs/firmwares.md): a
@@ -41,7 +42,7 @@ from fake_marlin.emulator.scenario.definition import (
 
 MAX_PRINTERS = 10_000  # more than one process can serve; a typo, not a farm
 _FARM_KEYS = ("count", "scenario", "seed", "link", "journal", "sd_dir", "tcp", "rfc2217", "fault",
-              "uuid", "serial", "machine_name")
+              "uuid", "serial", "machine_name", "eeprom_file")
 _IDENTITY_KEYS = ("uuid", "serial", "machine_name")
 
 
@@ -65,6 +66,7 @@ class PrinterPlan:
     uuid: str | None = None
     serial: str | None = None
     machine_name: str | None = None
+    eeprom_file: str | None = None  # where M500 keeps its settings (default: in memory)
 
 
 def numbered(pattern: str | None, number: int) -> str | None:
@@ -91,7 +93,7 @@ def copies(plan: PrinterPlan, count: int, first: int = 1) -> list[PrinterPlan]:
         out.append(dataclasses.replace(
             plan, number=number, faults=faults,
             link=numbered(plan.link, number), journal=numbered(plan.journal, number),
-            sd_dir=numbered(plan.sd_dir, number),
+            sd_dir=numbered(plan.sd_dir, number), eeprom_file=numbered(plan.eeprom_file, number),
             tcp=plan.tcp.plus(k) if plan.tcp else None,
             rfc2217=plan.rfc2217.plus(k) if plan.rfc2217 else None,
         ))
@@ -100,7 +102,7 @@ def copies(plan: PrinterPlan, count: int, first: int = 1) -> list[PrinterPlan]:
 
 def check_patterns(plans: list[PrinterPlan]) -> None:
     """Two printers may not share a link, journal, SD directory or port."""
-    for key in ("link", "journal", "sd_dir"):
+    for key in ("link", "journal", "sd_dir", "eeprom_file"):
         seen: dict[str, int] = {}
         for plan in plans:
             value = getattr(plan, key)
@@ -194,6 +196,7 @@ def _entry(path: Path, where: str, entry: dict, first: int) -> list[PrinterPlan]
         link=_beside(path, own.get("link", str, None)),
         journal=_beside(path, own.get("journal", str, None)),
         sd_dir=_beside(path, own.get("sd_dir", str, None)), **addresses,
+        eeprom_file=_beside(path, own.get("eeprom_file", str, None)),
         uuid=identity["uuid"], serial=identity["serial"], machine_name=identity["machine_name"],
     )
     own.finish()

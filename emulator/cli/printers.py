@@ -26,6 +26,7 @@ from fake_marlin.emulator.link.tcp import TcpLink
 from fake_marlin.emulator.firmware import load_profile, shipped
 from fake_marlin.emulator.firmware.quirks import NAMES as QUIRK_NAMES
 from fake_marlin.emulator.firmware.quirks import read_quirks
+from fake_marlin.emulator.printer.eeprom import EepromFileError
 from fake_marlin.emulator.printer.model import Printer
 from fake_marlin.emulator.tables import TableError, TableReader
 from fake_marlin.emulator.cli.farm import (
@@ -163,6 +164,12 @@ def add_arguments(parser: argparse._ActionsContainer) -> None:
         "--printers, a pattern with {n}; see docs/bootloader.md)",
     )
     parser.add_argument(
+        "--eeprom-file", metavar="FILE",
+        help="keep the settings M500 stores in FILE (JSON) across resets and runs, created at "
+        "the first M500 (default: in memory, kept across resets only; with --printers, a "
+        "pattern with {n})",
+    )
+    parser.add_argument(
         "--trace", metavar="FILE",
         help="write a wire trace to FILE: every byte each way, commands, planner room, heaters, "
         "faults and resets, as JSON lines (gzip if FILE ends in .gz; with several printers, a "
@@ -260,6 +267,7 @@ def _plans(parser: argparse.ArgumentParser, args: argparse.Namespace) -> list[Pr
             ("--printers", args.printers != 1), ("--scenario", args.scenario),
             ("--link", args.link), ("--journal", args.journal), ("--sd-dir", args.sd_dir),
             ("--tcp", args.tcp), ("--rfc2217", args.rfc2217), ("--fault", args.fault),
+            ("--eeprom-file", args.eeprom_file),
             ("--fault-table", args.fault_table),
         ) if value]
         if given:
@@ -304,7 +312,7 @@ def _plans(parser: argparse.ArgumentParser, args: argparse.Namespace) -> list[Pr
             parser.error(f"argument {error}")
     if args.printers > 1:
         for flag, value in (("--link", args.link), ("--journal", args.journal),
-                            ("--sd-dir", args.sd_dir)):
+                            ("--sd-dir", args.sd_dir), ("--eeprom-file", args.eeprom_file)):
             if value and "{n}" not in value:
                 parser.error(f"argument {flag}: with --printers, put {{n}} in it (the printer's "
                              f"number, from 1), e.g. {flag} /tmp/printer-{{n}}")
@@ -312,7 +320,7 @@ def _plans(parser: argparse.ArgumentParser, args: argparse.Namespace) -> list[Pr
         parser.error(f"argument --sd-dir: no directory {args.sd_dir}")
     base = PrinterPlan(
         1, setup, faults, args.link, args.journal, args.sd_dir,
-        tcp=args.tcp, rfc2217=args.rfc2217,
+        tcp=args.tcp, rfc2217=args.rfc2217, eeprom_file=args.eeprom_file,
     )
     return copies(base, args.printers)
 
@@ -353,7 +361,8 @@ class _Running:
             sd_dir = Path(cleanup.enter_context(tempfile.TemporaryDirectory(prefix="fake-marlin-sd-")))
         firmware = plan.setup.make_firmware(plan.number, plan.faults.seed, plan.uuid, plan.serial,
                                             plan.machine_name, capabilities)
-        config = firmware.printer_config(plan.setup.extruders, sd_dir)
+        config = firmware.printer_config(plan.setup.extruders, sd_dir,
+                                         Path(plan.eeprom_file) if plan.eeprom_file else None)
         self.server = PrinterServer(
             self.link, Printer(config), self.journal, plan.setup.server_config(plan.faults),
             memory=flash.memory if flash else None, flash_changed=flash.save if flash else None,
@@ -403,7 +412,7 @@ def run(parser: argparse.ArgumentParser, args: argparse.Namespace) -> int:
                 printers.append(_Running(plan, capabilities, len(plans) > 1, cleanup,
                                          numbered(args.flash_file, plan.number),
                                          numbered(args.trace, plan.number), args.speed))
-            except (LinkError, FlashFileError, TraceError) as error:
+            except (LinkError, FlashFileError, TraceError, EepromFileError) as error:
                 print(f"fake-marlin: {error}", file=sys.stderr)
                 return 2
             except OSError as error:

@@ -31,7 +31,7 @@ class Firmware:
     def __post_init__(self) -> None:
         if not self.capabilities:
             self.capabilities = self.profile.capabilities
-        self.words = Words(self.profile, self.identity, self.capabilities)
+        self.words = Words(self.profile, self.identity, self.said_capabilities())
 
     @classmethod
     def make(cls, profile: Profile | str = "marlin", seed: int = 0, number: int = 1,
@@ -52,6 +52,11 @@ class Firmware:
         return cls(profile, identity, profile.quirks if quirks is None else quirks,
                    tuple(merged.items()))
 
+    def switch(self, quirks: Quirks) -> None:
+        """These quirks from now on (the control channel): its words follow them."""
+        self.quirks = quirks
+        self.words = Words(self.profile, self.identity, self.said_capabilities())
+
     def speaking(self, protocol: str) -> "Firmware":
         """This printer's firmware as a host that speaks `protocol` hears it: a board that
         tells protocols apart (--protocol auto) answers a Repetier host in Repetier-Firmware's
@@ -62,14 +67,34 @@ class Firmware:
         other = load_profile(name)
         return Firmware(other, self.identity, self.quirks, other.capabilities)
 
-    def printer_config(self, extruders: int = 1, sd_dir: Path | None = None) -> PrinterConfig:
-        """The printer model's settings for this firmware: its capabilities and commands."""
+    def printer_config(self, extruders: int = 1, sd_dir: Path | None = None,
+                       eeprom_file: Path | None = None) -> PrinterConfig:
+        """The printer model's settings for this firmware: its capabilities and commands, as
+        its quirks change them."""
+        return self.configure(PrinterConfig(extruders=extruders, sd_dir=sd_dir,
+                                            eeprom_file=eeprom_file))
+
+    def configure(self, config: PrinterConfig) -> PrinterConfig:
+        """`config` with what this firmware and its quirks say (again, when they change)."""
+        quirks = self.quirks
         unsupported = set(self.profile.unsupported)
-        if self.quirks.no_m112:
+        if quirks.no_m112:
             unsupported.add("M112")
-        return PrinterConfig(extruders=extruders, sd_dir=sd_dir, capabilities=self.capabilities,
-                             command_sets=self.profile.command_sets,
-                             unsupported=frozenset(unsupported))
+        return dataclasses.replace(
+            config, capabilities=self.said_capabilities(), command_sets=self.profile.command_sets,
+            unsupported=frozenset(unsupported),
+            # (No M511 to unlock it with: a firmware without PASSWORD_FEATURE ignores the quirk.)
+            password_feature=bool(quirks.password) and "M511" not in unsupported,
+            password=quirks.password, locked_at_boot=quirks.locked,
+            machine_name=self.identity.machine_name,
+            silent_unknown_codes=self.profile.silent_unknown_codes,
+            heat_wait=self.profile.heat_wait)
+
+    def said_capabilities(self) -> tuple[tuple[str, bool], ...]:
+        """M115's capabilities: the profile's (as --capability changed them), EEPROM as the
+        eeprom quirk says where the firmware has the line."""
+        return tuple((name, self.quirks.eeprom if name == "EEPROM" else enabled)
+                     for name, enabled in self.capabilities)
 
     def line_rules(self) -> LineRules:
         """The profile's line rules, as the quirks on now change them."""

@@ -19,6 +19,7 @@ from typing import Any
 
 from fake_marlin.emulator.firmware.identity import SAMPLE_VALUES
 from fake_marlin.emulator.firmware.quirks import Quirks, read_quirks
+from fake_marlin.emulator.printer.heating import HeatWait
 from fake_marlin.emulator.printer.model import SET_STATEMENTS
 from fake_marlin.emulator.printer.statements import CATALOG, SPECIAL
 from fake_marlin.emulator.protocols.marlin import LineRules
@@ -42,6 +43,9 @@ class _Reader(TableReader):
 class Busy:
     interval: float = 2.0  # seconds between `busy:` lines while a command holds the queue
     adjustable: bool = True  # M113 S<seconds> sets it (Marlin's HOST_KEEPALIVE_FEATURE)
+    # M109/M190 say `busy:` too, between their temperature lines (BUSY_WHILE_HEATING as Marlin
+    # 1.1 has it); False: only the temperature lines.
+    while_heating: bool = False
 
 
 @dataclass(frozen=True)
@@ -55,6 +59,11 @@ class Halt:
     revive: frozenset[str] = frozenset()  # commands that reset it (FIRMWARE_RESTART)
     clear: frozenset[str] = frozenset()  # commands that end the halt without a reset (M999)
     reboot_after: float = 0.0  # seconds after which it resets itself (a watchdog); 0: never
+    refusal_ok: bool = True  # halted_refusal is followed by `ok` (Smoothieware's `!!` is not)
+    # True: every line it read gets its answer and `ok` through the halt, as a firmware that
+    # reads on does (Klipper): the command the halt cut short, the lines queued behind it and
+    # the rest of what came with M112. False: those are dropped.
+    answers_all: bool = False
 
 
 @dataclass(frozen=True)
@@ -83,6 +92,10 @@ class Profile:
     halt: Halt
     templates: dict[str, Any] = field(repr=False)  # statement key -> its table or template
     quirks: Quirks = Quirks()
+    # An unknown G, M or T code gets its `ok` and nothing more: only a line without one is an
+    # unknown command (Marlin 1.0's process_command(), the Ultimaker 2's).
+    silent_unknown_codes: bool = False
+    heat_wait: HeatWait = HeatWait()  # how M109/M190 wait ([heating])
 
     def capability(self, name: str) -> bool:
         return dict(self.capabilities).get(name, False)
@@ -135,7 +148,12 @@ def _read_chain(name_or_path: str, depth: int) -> tuple[dict[str, Any], str]:
     replace = tables.pop("replace", [])
     if not isinstance(replace, list) or not all(isinstance(name, str) for name in replace):
         raise ProfileError(f"{where}: replace: must be a list of table names, not {replace!r}")
-    base, _ = _read_chain(base_name, depth + 1)
+    try:
+        base, _ = _read_chain(base_name, depth + 1)
+    except ProfileError as error:
+        if depth == 0 and where not in str(error):
+            raise ProfileError(f"{where}: extends: {error}") from None
+        raise
     for name in replace:  # these tables are the new file's own, not the base's with changes
         base.pop(name, None)
     return _merged(base, tables), where
@@ -201,6 +219,8 @@ def _build(tables: dict[str, Any], path: str) -> Profile:
         halt=_halt(top.table_at("halt")),
         templates=_templates(top, command_sets),
         quirks=read_quirks(top.table_at("quirks"), Quirks()),
+        silent_unknown_codes=top.get("silent_unknown_codes", bool, False),
+        heat_wait=_heat_wait(top.table_at("heating")),
     )
     identity.finish()
     top.finish()
@@ -219,7 +239,8 @@ def _line_rules(table: _Reader) -> LineRules:
         if isinstance(current, tuple):
             values[rule.name] = _strings(table, rule.name, current)
             continue
-        value = table.get(rule.name, kind, None, minimum=1 if kind is int else None)
+        minimum = (0 if rule.name == "first_line" else 1) if kind is int else None
+        value = table.get(rule.name, kind, None, minimum=minimum)
         if value is not None:
             values[rule.name] = value
     table.finish()
@@ -229,6 +250,8 @@ def _line_rules(table: _Reader) -> LineRules:
         if getattr(rules, key) not in choices:
             table.fail(key, f"must be one of {', '.join(map(repr, choices))}, "
                             f"not {getattr(rules, key)!r}")
+    if rules.encoding not in ("ascii", "utf-8"):
+        table.fail("encoding", "must be \"ascii\" or \"utf-8\"")
     if rules.line_end not in ("\n", "\r\n"):
         table.fail("line_end", "must be \"\\n\" or \"\\r\\n\"")
     sample = {"last": 4, "line": 5, "expected": 5, "got": 7}
@@ -253,9 +276,20 @@ def _busy(table: _Reader) -> Busy:
     busy = Busy(
         interval=float(table.get("interval", (int, float), Busy.interval, minimum=0)),
         adjustable=table.get("adjustable", bool, Busy.adjustable),
+        while_heating=table.get("while_heating", bool, Busy.while_heating),
     )
     table.finish()
     return busy
+
+
+def _heat_wait(table: _Reader) -> HeatWait:
+    default = HeatWait()
+    wait = HeatWait(**{
+        name: table.get(name, (int, float), getattr(default, name), minimum=0) * 1.0
+        for name in ("residency", "window", "bed_residency", "bed_window")},
+        cools=table.get("cools", bool, default.cools))
+    table.finish()
+    return wait
 
 
 def _halt(table: _Reader) -> Halt:
@@ -268,6 +302,8 @@ def _halt(table: _Reader) -> Halt:
         revive=codes("revive"),
         clear=codes("clear"),
         reboot_after=float(table.get("reboot_after", (int, float), 0.0, minimum=0)),
+        refusal_ok=table.get("refusal_ok", bool, True),
+        answers_all=table.get("answers_all", bool, False),
     )
     table.finish()
     return halt
@@ -278,7 +314,8 @@ def _halt(table: _Reader) -> Halt:
 _SPECIAL_TABLES: dict[str, tuple[str, ...]] = {
     "greeting": ("lines", "sd", "after?"),
     "firmware_info": ("lines", "capability", "after?"),  # ?: may be left out (none)
-    "temperatures": ("one", "several", "each", "each_power", "auto", "heating"),
+    # heating_bed: M190's lines, where they are not M109's (heating): by default they are.
+    "temperatures": ("one", "several", "each", "each_power", "auto", "heating", "heating_bed?"),
     "position": ("report", "auto"),
 }
 
@@ -299,6 +336,7 @@ def _special_samples() -> dict[tuple[str, str], dict[str, object]]:
         ("temperatures", "each"): heat, ("temperatures", "each_power"): heat,
         ("temperatures", "auto"): {**CATALOG["auto_temperatures"], **report},
         ("temperatures", "heating"): {**CATALOG["heating"], **report},
+        ("temperatures", "heating_bed"): {**CATALOG["heating"], **report},
         ("position", "report"): CATALOG["position"], ("position", "auto"): CATALOG["auto_position"],
     }
 
@@ -331,6 +369,8 @@ def _templates(top: _Reader, command_sets: tuple[str, ...]) -> dict[str, Any]:
             if value is None:
                 table.fail(key, "is missing")
             found[key] = (value,) if isinstance(value, str) else _strings(table, key)
+        if table_name == "temperatures" and "heating_bed" not in table.table:
+            found["heating_bed"] = found["heating"]
         table.finish()
         templates[table_name] = found
     for (table_name, key), sample in _special_samples().items():

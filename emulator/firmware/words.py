@@ -25,7 +25,8 @@ class Words:
             "temperatures": lambda values: self._fill(temperatures["one" if len(
                 values["hotends"]) == 1 else "several"], self._heaters(values)),
             "auto_temperatures": lambda values: self._around(temperatures["auto"], values),
-            "heating": lambda values: self._around(temperatures["heating"], values),
+            "heating": lambda values: self._around(temperatures[
+                "heating_bed" if values.get("heater") == "B" else "heating"], values),
             "position": lambda values: self._fill(self._templates["position"]["report"], values),
             "auto_position": lambda values: self._fill(self._templates["position"]["auto"], values),
             "verbatim": lambda values: [values["text"]],

@@ -53,9 +53,25 @@ def heater(printer, name: str):
     return printer.bed if name.upper().startswith("B") else printer.hotends[_hotend_index(printer, name)]
 
 
+# A command set's handler under this key takes a thermal error instead of kill() (RepRapFirmware:
+# a heater fault turns that heater off and the printer runs on): `handler(printer, reason, heater,
+# now)`, heater as Failure.heater names it; it returns what the firmware says.
+HEATER_FAULT = "(heater fault)"
+
+
 def thermal_error(printer, reason: str, heater_name: str, now: float) -> tuple[Statement, ...]:
     """`reason` is the statement's key: thermal_runaway, mintemp, maxtemp, heating_failed."""
-    return printer.kill(state(reason, heater=heater_id(printer, heater_name)), now)
+    if (fault := printer.handlers.get(HEATER_FAULT)) is not None:
+        return fault(printer, reason, heater_name, now)
+    which = heater(printer, heater_name)
+    if which is printer.bed:
+        designator = "B"
+    else:
+        index = _hotend_index(printer, heater_name)
+        designator = "T" if index == 0 else f"T{index}"
+    delta = which.temperature(now) - which.target
+    return printer.kill(state(reason, heater=heater_id(printer, heater_name),
+                              designator=designator, delta=delta), now)
 
 
 def apply(printer, failure: Failure, now: float) -> tuple[Statement, ...]:

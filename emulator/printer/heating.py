@@ -1,9 +1,12 @@
 """Temperature and fan G-codes: M104/M109, M140/M190, M105, M155, M106/M107 and T<n>."""
 
+from dataclasses import dataclass
+
 from fake_marlin.emulator.printer.failures import thermal_error
 from fake_marlin.emulator.printer.gcode import Command
 from fake_marlin.emulator.printer.statements import Heat, Statement, state
 from fake_marlin.emulator.printer.steps import Reply, Report, Sleep, reply
+from fake_marlin.emulator.printer.thermal import FULL_POWER
 
 # Marlin's defaults: a heater must stay within TEMP_WINDOW of target for TEMP_RESIDENCY_TIME.
 TEMP_WINDOW = 1.0
@@ -15,12 +18,25 @@ WATCH_TEMP_PERIOD = {"hotend": 20.0, "bed": 60.0}
 WATCH_TEMP_INCREASE = {"hotend": 2.0, "bed": 2.0}
 
 
+@dataclass(frozen=True)
+class HeatWait:
+    """How M109 and M190 wait, as a firmware's profile says ([heating]): Marlin's by default."""
+
+    residency: float = TEMP_RESIDENCY_TIME  # M109: seconds within `window` of the target
+    window: float = TEMP_WINDOW
+    bed_residency: float = TEMP_RESIDENCY_TIME  # M190's (0: done once within bed_window)
+    bed_window: float = TEMP_WINDOW
+    cools: bool = False  # M109 S waits for a hotter hotend to cool down too (Marlin 1.0)
+
+
 def heats(printer, now: float, tool: int | None = None) -> dict[str, object]:
     """A temperature report's values: the active hotend (or `tool`), the bed, every hotend."""
     tool = printer.active_tool if tool is None else tool
 
     def heat(label: str, index: int, heater) -> Heat:
-        return Heat(label, index, heater.temperature(now), heater.target, heater.power(now))
+        power = heater.power(now)
+        return Heat(label, index, heater.temperature(now), heater.target, power,
+                    round(power * 255 / FULL_POWER))
 
     hotends = tuple(heat(f"T{index}", index, heater) for index, heater in enumerate(printer.hotends))
     return {"active": hotends[tool], "bed": heat("B", 0, printer.bed), "hotends": hotends,
@@ -83,7 +99,11 @@ def _set_and_wait(printer, heater, command: Command, now: float, tool: int | Non
     if not (command.has("S") or command.has("R")):
         return now
     heater.set_target(now, command.value("S", command.value("R", 0.0)))
-    cooling_allowed = command.has("R") and not command.has("S")
+    wait: HeatWait = printer.config.heat_wait
+    cooling_allowed = (command.has("R") and not command.has("S")) or (tool is not None
+                                                                      and wait.cools)
+    residency_time, window = ((wait.residency, wait.window) if tool is not None
+                              else (wait.bed_residency, wait.bed_window))
     if heater.target == 0.0 or (heater.temperature(now) >= heater.target and not cooling_allowed):
         return now
     printer.heating_cancelled = False
@@ -99,8 +119,8 @@ def _set_and_wait(printer, heater, command: Command, now: float, tool: int | Non
                     yield Report(line)
                 return now
             watch_end, watch_goal = now + WATCH_TEMP_PERIOD[kind], heater.temperature(now) + WATCH_TEMP_INCREASE[kind]
-        if residency_end is None and abs(heater.temperature(now) - heater.target) <= TEMP_WINDOW:
-            residency_end = now + TEMP_RESIDENCY_TIME
+        if residency_end is None and abs(heater.temperature(now) - heater.target) <= window:
+            residency_end = now + residency_time
         if residency_end is not None and now >= residency_end:
             break
         if now >= next_report:
@@ -109,7 +129,9 @@ def _set_and_wait(printer, heater, command: Command, now: float, tool: int | Non
                                                "heater": "B" if tool is None else f"T{tool}"}))
             next_report = now + REPORT_INTERVAL
         if residency_end is None:
-            wake = min(next_report, watch_end, max(heater.reached_at(now), now + 0.01))
+            # (the heating watch is only while heating: a wait to cool down passes its end)
+            watch = watch_end if heater.target > heater.temperature(now) else next_report
+            wake = min(next_report, watch, max(heater.reached_at(now), now + 0.01))
         else:
             wake = min(next_report, residency_end)
         now = yield Sleep(wake)
@@ -151,7 +173,16 @@ def select_tool(printer, command: Command, now: float):
     return reply(state("active_extruder", tool=tool))
 
 
+def pid_settings(printer, command: Command, now: float):
+    """M301 P I D: the hotend's PID, kept and reported (M503); the thermal model has its own."""
+    for index, letter in enumerate("PID"):
+        if command.has(letter):
+            printer.limits.pid[index] = command.value(letter, 0.0)
+    return reply()
+
+
 HANDLERS = {
+    "M301": pid_settings,
     "M104": set_hotend,
     "M105": report_temperatures,
     "M106": set_fan,

@@ -16,9 +16,12 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from fake_marlin.emulator.printer import (
+    eeprom,
     heating,
+    host_actions,
     klipper,
     motion,
+    password,
     prusa,
     reprapfirmware,
     sdcard,
@@ -80,7 +83,16 @@ class PrinterConfig:
     capabilities: tuple[tuple[str, bool], ...] = DEFAULT_CAPABILITIES
     command_sets: tuple[str, ...] = ("marlin",)  # the handlers this firmware has, in order
     unsupported: frozenset[str] = frozenset()  # commands of those sets it does not know
+    # PASSWORD_FEATURE (the password quirk): M510-M512, the password, locked at power-up.
+    password_feature: bool = False
+    password: str = ""
+    locked_at_boot: bool = False
+    eeprom_file: Path | None = None  # where M500 keeps the settings (None: in memory only)
+    # An unknown G/M/T code gets a plain `ok`, not unknown_command (Marlin 1.0, Ultimaker 2).
+    silent_unknown_codes: bool = False
+    heat_wait: heating.HeatWait = heating.HeatWait()  # how M109/M190 wait (a profile's [heating])
     sd_dir: Path | None = None  # None: the printer has no SD card inserted
+    machine_name: str = ""  # the identity's, for a firmware that reports it (RRF's M550)
     acceleration: float = 3000.0  # mm/s^2
     junction_speed: float = 10.0  # mm/s, what a move may enter and leave at
     max_feedrate: tuple[float, float, float, float] = (300.0, 300.0, 40.0, 45.0)  # mm/s
@@ -101,7 +113,8 @@ class AutoReports:
     sd_status: float = 0.0  # M27 S
 
 
-HANDLERS = {**motion.HANDLERS, **heating.HANDLERS, **sdcard.HANDLERS, **system.HANDLERS}
+HANDLERS = {**motion.HANDLERS, **heating.HANDLERS, **sdcard.HANDLERS, **system.HANDLERS,
+            **host_actions.HANDLERS, **eeprom.HANDLERS}
 # A profile's command_sets name these, in order: a later set's handler replaces an earlier's.
 COMMAND_SETS: dict[str, dict] = {
     "marlin": HANDLERS,
@@ -128,9 +141,15 @@ def handlers_for(config: "PrinterConfig") -> dict:
     table: dict = {}
     for name in config.command_sets:
         table.update(COMMAND_SETS[name])
+    if config.password_feature:
+        table.update(password.HANDLERS)
     for code in config.unsupported:
         table.pop(code, None)
     return table
+# A command set's handler under this key sees every line before the handler of its code: it
+# returns what the line does (a Reply or a Step), or None for the code's handler to run it
+# (Smoothieware reads a line by its first character: `$` and lower case are console commands).
+LINE_READER = "(line)"
 # Commands that report temperatures themselves while they wait, so no `busy:` lines.
 SELF_REPORTING = frozenset({"M109", "M190"})
 
@@ -144,6 +163,9 @@ class Printer:
         # at a reset keeps the boot it belongs to (`boots`) beside it.
         self.extensions: dict[str, object] = {}
         self.boots = 0
+        self.eeprom = eeprom.EepromFile(self.config.eeprom_file)  # outlives resets
+        self.password = self.config.password
+        self.locked = False
         self._planner = Planner()
         self._unplanned: list[tuple[PlainMove, float]] = []  # see move_at_once()
         self.hotends = [Heater(HOTEND, now) for _ in range(self.config.extruders)]
@@ -157,7 +179,12 @@ class Printer:
         self._unplanned.clear()  # as good as planned and cleared: motion starts afresh
         self._planner.clear()
         self._motion = MotionState(feedrate=self.config.default_feedrate)
-        self._limits = Limits.from_config(self.config)
+        self.reset_settings()
+        if self.config.capability("EEPROM"):
+            eeprom.apply_stored(self)  # settings.first_load(): what M500 stored, if anything
+        self.host_prompt = host_actions.HostPrompt()
+        if self.config.locked_at_boot and self.config.password_feature:
+            self.locked = True  # PASSWORD_ON_STARTUP
         self.active_tool = 0
         self.fans = [0] * max(1, self.config.extruders)
         self.auto_reports = AutoReports()
@@ -167,6 +194,15 @@ class Printer:
         for heater in (*self.hotends, self.bed):
             heater.set_target(now, 0.0)
         self.sd.reset()
+
+    def reset_settings(self) -> None:
+        """The settings as the firmware was built (M502, a reset): the limits of the config."""
+        self._unplanned_first()
+        self._limits = Limits.from_config(self.config)
+
+    def _unplanned_first(self) -> None:
+        if getattr(self, "_unplanned", None):
+            self._plan_moves()  # under the limits they came with
 
     # Motion, the planner and the limits are read through these: the moves that went at once
     # (move_at_once) are planned before anyone looks.
@@ -205,10 +241,19 @@ class Printer:
             command = parse(line)
         if not command.text:
             return Reply()
-        handler = self.handlers.get(command.code)
-        if handler is None:
-            return Reply((state("unknown_command", command=command.text),))
-        outcome = handler(self, command, now)
+        if self.locked and (refusal := password.refused(self, command)) is not None:
+            return refusal
+        reader = self.handlers.get(LINE_READER)  # a set's first look at every line
+        outcome = None if reader is None else reader(self, command, now)
+        if outcome is None:
+            handler = self.handlers.get(command.code)
+            if handler is None:
+                if (self.config.silent_unknown_codes and command.code[:1] in ("G", "M", "T")
+                        and command.code[1:].isdigit()):
+                    return Reply()  # a G, M or T code it lacks: just `ok`
+                return Reply((state("unknown_command", command=command.text,
+                                    name=command.code or command.text.upper()),))
+            outcome = handler(self, command, now)
         if isinstance(outcome, Generator):
             outcome = yield from outcome
         return outcome
@@ -223,6 +268,8 @@ class Printer:
         result. A session's most common command then costs a list append on its way to the
         `ok`, and the planning is done a dozen moves at a time, with the code warm: 8 µs of CPU
         a move instead of 34 between a host's lines (a 2-CPU VM, 2,000 short moves)."""
+        if self.locked:
+            return False  # execute() refuses it
         # Room for certain: blocks are retired only as planning goes, in order of arrival, so
         # the planner holds at most this many moves that have not finished.
         if len(self._unplanned) + self._planner.held() >= MAX_MOVES:
@@ -245,6 +292,9 @@ class Printer:
         command: Command = parse(text)
         if command.code == "M108":
             self.heating_cancelled = True
+            host_actions.user_continues(self)
+        elif command.code == "M876":
+            host_actions.respond(self, int(command.value("S", 0.0)))
         elif command.code == "M112":
             return self.kill(state("m112_shutdown"), now)
         elif command.code == "M410":
@@ -264,6 +314,15 @@ class Printer:
         if self.config.capability("HOST_ACTION_COMMANDS"):
             lines.append(state("action", action="poweroff"))
         return tuple(lines)
+
+    def realtime(self, text: str, now: float) -> tuple[Statement, ...]:
+        """A character the firmware acts on the moment it arrives, wherever it is in a line
+        (the line rules' `realtime`: Smoothieware's `?` and ^X): the handler its command set
+        has under that character says what it says, at once (it never waits)."""
+        handler = self.handlers.get(text)
+        if handler is None:
+            return ()
+        return handler(self, Command(text, text, {}), now).response_data()
 
     def clear_halt(self) -> None:
         """M999 where a firmware has it (Smoothieware, Repetier): running again, heaters off

@@ -35,10 +35,20 @@ class Limits:
     recover_extra: float = 0.0  # M208 S
     recover_feedrate: float = 8.0  # mm/s, M208 F
     inactivity_timeout: float = 0.0  # M85 S
+    # What M503 reports and M500 stores beside the above (Marlin 2.1's stock values).
+    steps_per_mm: list[float] = field(default_factory=lambda: [80.0, 80.0, 400.0, 500.0])  # M92
+    max_acceleration: list[float] = field(default_factory=lambda: [3000.0, 3000.0, 100.0,
+                                                                   10000.0])  # M201
+    retract_acceleration: float = 3000.0  # M204 R
+    travel_acceleration: float = 3000.0  # M204 T
+    home_offset: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])  # M206
+    pid: list[float] = field(default_factory=lambda: [22.2, 1.08, 114.0])  # M301 P I D
 
     @classmethod
     def from_config(cls, config) -> "Limits":
-        return cls(list(config.max_feedrate), config.acceleration)
+        limits = cls(list(config.max_feedrate), config.acceleration)
+        limits.steps_per_mm[:3] = list(config.steps_per_mm)
+        return limits
 
 
 def _target(printer, command: Command) -> list[float]:
@@ -305,9 +315,36 @@ def max_feedrates(printer, command: Command, now: float):
 
 
 def accelerations(printer, command: Command, now: float):
+    """M204 S/P (printing), R (retract), T (travel); M201 X Y Z E (each axis's maximum)."""
+    limits = printer.limits
+    if command.code == "M201":
+        for index, axis in enumerate(AXES):
+            if command.value(axis, 0.0) > 0:
+                limits.max_acceleration[index] = command.value(axis, 0.0)
+        return reply()
     for letter in ("S", "P"):
         if command.value(letter, 0.0) > 0:
-            printer.limits.acceleration = command.value(letter)
+            limits.acceleration = command.value(letter)
+    if command.value("R", 0.0) > 0:
+        limits.retract_acceleration = command.value("R", 0.0)
+    if command.value("T", 0.0) > 0:
+        limits.travel_acceleration = command.value("T", 0.0)
+    return reply()
+
+
+def steps_per_unit(printer, command: Command, now: float):
+    """M92: steps per mm of each axis (the model moves in mm; M114's counts are in steps)."""
+    for index, axis in enumerate(AXES):
+        if command.value(axis, 0.0) > 0:
+            printer.limits.steps_per_mm[index] = command.value(axis, 0.0)
+    return reply()
+
+
+def home_offset(printer, command: Command, now: float):
+    """M206: kept and reported (M503); the model's positions do not apply it."""
+    for index, axis in enumerate("XYZ"):
+        if command.has(axis):
+            printer.limits.home_offset[index] = command.value(axis, 0.0)
     return reply()
 
 
@@ -346,7 +383,10 @@ def position_report(printer, now: float, key: str = "position") -> Statement:
     x, y, z, e = printer.motion.position
     stepper = printer.planner.stepper_position(now, tuple(printer.motion.position))
     counts = {f"count_{axis}": round(value * steps) for axis, value, steps in
-              zip("xyz", stepper, printer.config.steps_per_mm)}
+              zip("xyz", stepper, printer.limits.steps_per_mm)}
+    if key == "position":  # (and in mm: whole steps over steps per mm)
+        counts.update({f"stepper_{axis}": round(value * steps) / steps for axis, value, steps in
+                       zip("xyze", stepper, printer.limits.steps_per_mm)})
     return Statement(key, {"x": x, "y": y, "z": z, "e": e, **counts})
 
 
@@ -381,9 +421,11 @@ HANDLERS = {
     "M84": disable_steppers,
     "M85": inactivity_timeout,
     "M114": report_position,
+    "M92": steps_per_unit,
     "M201": accelerations,
     "M203": max_feedrates,
     "M204": accelerations,
+    "M206": home_offset,
     "M207": retract_settings,
     "M208": retract_settings,
     "M220": feedrate_percent,

@@ -9,6 +9,7 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
+from fake_marlin.emulator.printer import host_actions
 from fake_marlin.emulator.printer.gcode import Command
 from fake_marlin.emulator.printer.statements import Statement, state
 from fake_marlin.emulator.printer.steps import reply
@@ -47,6 +48,10 @@ class OpenFile:
 
 
 class SdCard:
+    # What ends each line M28 writes: Marlin's card.write_command() "\r\n"; a command set
+    # that writes otherwise sets its own (RepRapFirmware's "\n").
+    line_end = "\r\n"
+
     def __init__(self, root: Path | None) -> None:
         self.root = root
         self.reset()
@@ -142,7 +147,7 @@ class SdCard:
         if self.saving is None:
             raise RuntimeError("no file is open for writing (M28)")
         with open(self.saving, "a", encoding="ascii", errors="replace", newline="") as target:
-            target.write(text + "\r\n")
+            target.write(text + self.line_end)
 
     def status(self) -> Statement:
         if self.selected is not None and self.printing:
@@ -201,12 +206,12 @@ def select_file(printer, command: Command, now: float):
 def start_print(printer, command: Command, now: float):
     if printer.sd.selected is not None:
         printer.sd.printing = True
-    return reply()
+    return reply(*host_actions.sd_resumed(printer))  # M24 says so, printing or not
 
 
 def pause_print(printer, command: Command, now: float):
     printer.sd.printing = False
-    return reply()
+    return reply(*host_actions.sd_paused(printer))
 
 
 def set_position(printer, command: Command, now: float):

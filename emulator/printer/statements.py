@@ -33,6 +33,7 @@ class Heat(NamedTuple):
     actual: float
     target: float
     power: int  # 0..127, as Marlin's @: shows it
+    pwm: int = 0  # the same power as a 0..255 duty (Smoothieware's @)
 
 
 _HOTEND = Heat("T0", 0, 21.0, 0.0, 0)
@@ -52,12 +53,16 @@ CATALOG: dict[str, dict[str, object]] = {
     "auto_temperatures": _TEMPERATURES,  # M155's
     "heating": {**_TEMPERATURES, "remaining": "?", "heater": "T0"},  # M109/M190 while waiting
     "position": {"x": 0.0, "y": 0.0, "z": 0.0, "e": 0.0,
-                 "count_x": 0, "count_y": 0, "count_z": 0},  # M114
+                 "count_x": 0, "count_y": 0, "count_z": 0,
+                 # the same counts in mm (Marlin 1.0's `Count X: 0.00`)
+                 "stepper_x": 0.0, "stepper_y": 0.0, "stepper_z": 0.0, "stepper_e": 0.0},  # M114
     "auto_position": {"x": 0.0, "y": 0.0, "z": 0.0, "e": 0.0},  # M154
     # -- commands ------------------------------------------------------------------------
     "hotend_target": {"tool": 0, "target": 200.0},  # M104/M109 S set it
     "bed_target": {"target": 60.0},  # M140/M190 S
-    "unknown_command": {"command": "M9999"},
+    # `name`: the command alone, upper case (Klipper's words); given where the model finds no
+    # handler (Printer.execute)
+    "unknown_command": {"command": "M9999", "name": "M9999"},
     "invalid_extruder": {"code": "M104", "tool": 3},
     "invalid_tool": {"tool": 3},
     "active_extruder": {"tool": 1},
@@ -73,16 +78,45 @@ CATALOG: dict[str, dict[str, object]] = {
     "bed_leveling_applied": {},
     # -- halts and faults ------------------------------------------------------------------
     "m112_shutdown": {},
-    "thermal_runaway": {"heater": "0"},
-    "mintemp": {"heater": "0"},
-    "maxtemp": {"heater": "0"},
-    "heating_failed": {"heater": "0"},
+    # heater: Marlin's Heater_ID (0.., bed); designator: as a RepRap-style report names it (T,
+    # T1.., B); delta: how far it was from its target (degrees, + above).
+    "thermal_runaway": {"heater": "0", "designator": "T", "delta": 15.0},
+    "mintemp": {"heater": "0", "designator": "T", "delta": 15.0},
+    "maxtemp": {"heater": "0", "designator": "T", "delta": 15.0},
+    "heating_failed": {"heater": "0", "designator": "T", "delta": 15.0},
     "killed": {},  # after the reason: the printer is halted
-    "halted_refusal": {"command": "G28"},  # a command a halted printer does not run
+    # a command a halted printer does not run; `name`: its code alone (RepRapFirmware's words)
+    "halted_refusal": {"command": "G28 X", "name": "G28"},
     "halt_cleared": {},  # M999 (Smoothieware, Repetier): running again, without a reset
     "restarting": {},  # FIRMWARE_RESTART: said as the firmware goes down
     "connected": {},  # a host opened the port and the board did not reset (Smoothieware's hello)
     "action": {"action": "poweroff"},  # a host action command (Marlin's //action:)
+    # -- host prompts (M0/M1, M600, M24/M25) and notifications ---------------------------
+    "prompt_end": {},
+    "prompt_begin": {"text": "Nozzle Parked"},
+    "prompt_button": {"text": "Continue"},
+    "prompt_show": {},
+    "notification": {"text": "Settings Stored"},
+    "user_message": {"text": "Change the nozzle"},  # M0's message
+    "insert_filament": {},  # M600, once the filament is out
+    # -- a locked printer (PASSWORD_FEATURE: M510-M512) -----------------------------------
+    "printer_locked": {},
+    "wrong_password": {},
+    "password_set": {"password": "1234"},
+    "password_too_long": {},
+    "password_removed": {},
+    "remember_to_save": {},
+    # -- EEPROM settings (M500-M504) --------------------------------------------------------
+    "settings_stored": {"size": 621, "crc": 47016},
+    "settings_retrieved": {"size": 621, "crc": 47016},
+    "settings_defaults": {},  # M502, or a load that found nothing stored
+    "eeprom_disabled": {},
+    "eeprom_ok": {},
+    "settings_report": {"steps": (80.0, 80.0, 400.0, 500.0), "feedrates": (300.0, 300.0, 5.0, 25.0),
+                        "max_accelerations": (3000.0, 3000.0, 100.0, 10000.0),
+                        "accelerations": (3000.0, 3000.0, 3000.0), "home_offset": (0.0, 0.0, 0.0),
+                        "pid": (22.2, 1.08, 114.0), "retract": (3.0, 45.0, 0.0),
+                        "recover": (0.0, 8.0)},
     "firmware_error": {"text": "Something went wrong"},
     # -- the SD card -----------------------------------------------------------------------
     "sd_ok": {},
@@ -115,6 +149,7 @@ CATALOG: dict[str, dict[str, object]] = {
     # -- the session's own lines -----------------------------------------------------------
     "busy_processing": {},
     "busy_heating": {},
+    "busy_paused_for_user": {},
     # A line said as it is given (the control channel's `say`), in every firmware.
     "verbatim": {"text": "//action:pause"},
 }

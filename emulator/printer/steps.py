@@ -25,7 +25,10 @@ class Reply:
     # `ok T:21.00 /0.00 ...` in Marlin's words): the firmware's profile says where it goes.
     answer: Statement | None = None
     # What the command does to the firmware itself once its `ok` is out: "restart"
-    # (Klipper's FIRMWARE_RESTART, RESTART).
+    # (Klipper's FIRMWARE_RESTART, RESTART); "no_ok": there is no `ok` (Smoothieware's
+    # console commands); "reset": the board resets with no `ok` (RepRapFirmware's M999);
+    # "halted": it halted the printer, and still has its `ok` (RepRapFirmware's M112);
+    # "ok_first": its `ok` goes before what it printed (RepRapFirmware's M28).
     effect: str | None = None
 
     def response_data(self) -> tuple[Statement, ...]:

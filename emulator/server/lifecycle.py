@@ -13,7 +13,7 @@ from fake_marlin.emulator.journal.writer import Journal
 from fake_marlin.emulator.link.base import HostOpened, Link
 from fake_marlin.emulator.link.conditions import LinkConditions, Pipe
 from fake_marlin.emulator.printer import failures
-from fake_marlin.emulator.printer.model import Printer
+from fake_marlin.emulator.printer.model import Printer, handlers_for
 from fake_marlin.emulator.printer.statements import Statement, state
 from fake_marlin.emulator.protocols.avr_memory import BoardMemory
 from fake_marlin.emulator.sessions.base import Session
@@ -308,11 +308,18 @@ class PrinterServer:
     def set_quirks(self, quirks: Quirks) -> None:
         """Switch the firmware's quirks (the control channel): the session on now takes them
         from its next line, a new boot from its start."""
-        self.firmware.quirks = quirks
+        self.firmware.switch(quirks)
+        printer = self.printer
+        printer.config = self.firmware.configure(printer.config)
+        printer.handlers = handlers_for(printer.config)
+        if printer.config.password_feature and printer.password != quirks.password:
+            printer.password = quirks.password
+        if quirks.locked and printer.config.password_feature:
+            printer.locked = True
         session = self._active_session()
         changed = getattr(session, "quirks_changed", None)
         if changed is not None:
-            changed()
+            changed(quirks)
 
     @property
     def protocol_name(self) -> str | None:

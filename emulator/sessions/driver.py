@@ -55,7 +55,8 @@ class CommandRun:
                 step = self._steps.send(trio.current_time())
         except StopIteration as finished:
             self.reply = finished.value
-        self.record()
+        if self.reply.effect != "refused":
+            self.record()
         return None
 
     @property

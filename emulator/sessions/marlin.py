@@ -8,13 +8,17 @@ from collections.abc import Callable, Iterable
 
 import trio
 
-from fake_marlin.emulator.firmware import Firmware
+from fake_marlin.emulator.firmware import Firmware, Quirks
 from fake_marlin.emulator.journal.writer import Journal
 from fake_marlin.emulator.printer.gcode import Command, parse, plain_move
 from fake_marlin.emulator.printer.model import SELF_REPORTING, Printer, Reply
 from fake_marlin.emulator.printer.statements import Statement, state
 from fake_marlin.emulator.protocols.base import CommandDone, CommandReceived, Output
-from fake_marlin.emulator.protocols.marlin import EmergencyCommand, MarlinProtocol
+from fake_marlin.emulator.protocols.marlin import (
+    EmergencyCommand,
+    MarlinProtocol,
+    RealtimeCommand,
+)
 from fake_marlin.emulator.sessions.driver import CommandRun, finish, hold_queue_full
 from fake_marlin.emulator.sessions.marlin_binary import BinaryTransfer
 
@@ -46,8 +50,13 @@ class MarlinSession:
         self._oks = 0  # sent or dropped, for the quirk that drops every Nth
         self._drop_ok_every = firmware.quirks.drop_ok_every
         self._backlog: deque[CommandReceived] = deque()  # received while a command waits
+        self._ok_sent: CommandReceived | None = None  # its `ok` went before it ran (ok_before_run)
         self._waiting: tuple[CommandReceived, Command, CommandRun, float] | None = None
         self._executor_idle = False  # until the executor task runs
+        # [halt] answers_all: the wait a halt cuts short, and whether what was queued before
+        # the halt still owes its answers (what arrives meanwhile waits behind them).
+        self._interrupt: trio.CancelScope | None = None
+        self._pending_answers = False
         self._work = trio.Event()
         self._halt_changed = trio.Event()
         self._reports: tuple[object, ...] = ()
@@ -80,7 +89,12 @@ class MarlinSession:
 
     def feed(self, data: bytes) -> None:
         if self.printer.halted:
-            if self.firmware.profile.halt.reads:
+            halt = self.firmware.profile.halt
+            if halt.answers_all and (self._pending_answers or self._owes_answers()):
+                self._pending_answers = True
+                self.protocol.receive_data(data)  # read once what came before is answered
+                self._wake()
+            elif halt.reads:
                 self._feed_halted(data)
             return  # a killed Marlin reads nothing until it is reset
         binary = self._binary
@@ -100,11 +114,28 @@ class MarlinSession:
                 self.announce(self.printer.emergency(event.text, trio.current_time()))
                 if self.printer.halted:
                     self._wake()
+                    if self.firmware.profile.halt.answers_all:
+                        self._halted_reading_on()
                     break
+            elif isinstance(event, RealtimeCommand) and self._realtime(event):
+                break  # it halted the printer
         if rejections := self.protocol.data_to_send():  # a rejected line's Error and Resend
             self._send(rejections)
         if binary.protocol is not None and binary.active:
             self.feed(b"")  # what came with M28 B1 is the binary protocol's
+
+    def _realtime(self, event: RealtimeCommand) -> bool:
+        """A character the firmware acts on as it arrives (Smoothieware's `?`, ^X); True if it
+        halted the printer, which then drops what it has not read yet (its RX buffer)."""
+        halted = self.printer.halted
+        self.announce(self.printer.realtime(event.text, trio.current_time()))
+        if self.printer.halted and not halted:
+            self.protocol.hand_over()
+            self._wake()
+            if self.firmware.profile.halt.answers_all:
+                self._halted_reading_on()
+            return True
+        return False
 
     def _wake(self) -> None:
         self._busy_changed.set()
@@ -113,12 +144,45 @@ class MarlinSession:
         self._halt_changed.set()
 
     # -- halted ------------------------------------------------------------------------
+    def _owes_answers(self) -> bool:
+        """A command cut short or queued when the halt came, whose `ok` is still to go."""
+        return self._interrupt is not None or self._waiting is not None or bool(self._backlog)
+
+    def _halted_reading_on(self) -> None:
+        """answers_all, as the emergency parser halts the printer: the wait it cuts short ends
+        now; what was queued is answered first (the executor), then what came with M112."""
+        if self._interrupt is not None:
+            self._interrupt.cancel()
+        if self._owes_answers():
+            self._pending_answers = True
+        else:
+            self._feed_halted(b"")
+
+    def _answer_queued(self) -> bool:
+        """answers_all: the executor answers what was queued when the halt came, in order,
+        then reads on what came since. False if nothing was owed."""
+        if not (self._pending_answers or self._owes_answers()):
+            return False
+        if self._waiting is not None:
+            run = self._waiting[2]
+            self._waiting = None
+            run.abandon()
+            self._send_done(PLAIN_OK)
+        while self._backlog and self.printer.halted:
+            self._answer_halted(self._backlog.popleft())
+        self._pending_answers = False
+        if self.printer.halted:
+            self._feed_halted(b"")
+        return True
+
     def _feed_halted(self, data: bytes) -> None:
         """A halted firmware that still reads (Klipper, Smoothieware): each command gets its
         refusal and `ok`, but for those its profile says it still runs, or that end the halt."""
         self.protocol.receive_data(data)
         while (event := self.protocol.next_event()) is not None:
-            if isinstance(event, CommandReceived):
+            if isinstance(event, RealtimeCommand):
+                self._realtime(event)
+            elif isinstance(event, CommandReceived):
                 self._answer_halted(event)
                 if not self.printer.halted:  # M999: what follows runs as usual
                     rest = self.protocol.data_to_send()
@@ -138,17 +202,26 @@ class MarlinSession:
         elif command.code in halt.clear:
             self.printer.clear_halt()
             self._wake()
+            self.announce((state("halt_cleared"),))
             self._run_here(received)  # it runs, as the first command of the running printer
         elif command.code in halt.still_runs:
             run = self._run(received.text, command)
-            if run.advance() is None:  # (a command that would wait does not, halted)
+            until = run.advance()
+            if not self.printer.halted:  # it ended the halt itself (Smoothieware's $X, $H)
+                self._wake()
+                if until is not None:  # and waits, as any command of a running printer
+                    self._executor_idle = False
+                    self._waiting = (received, command, run, until)
+                    return
+            if until is None:  # (a command that would wait does not, halted)
                 self._say_done(received, command, run.reply)
             else:
                 run.abandon()
                 self._send_done(PLAIN_OK)
         else:
-            self.announce((state("halted_refusal", command=received.text),))
-            self._send_done(PLAIN_OK)
+            self.announce((state("halted_refusal", command=received.text,
+                                 name=command.code or received.text.upper()),))
+            self._send_done(PLAIN_OK if halt.refusal_ok else QUIET_OK)
 
     async def _when_halted(self) -> None:
         """A firmware whose watchdog resets it a while after a kill (Prusa's M112)."""
@@ -175,6 +248,9 @@ class MarlinSession:
     async def _execute_commands(self) -> None:
         sd = self.printer.sd
         while True:
+            if (self.printer.halted and self.firmware.profile.halt.answers_all
+                    and self._answer_queued()):
+                continue
             if self.printer.halted:
                 # Until M999 clears it, where the firmware has one; else until the reset.
                 self._waiting = None
@@ -216,7 +292,8 @@ class MarlinSession:
         sd = self.printer.sd
         if sd.saving is not None and not re.match(r"M29(?!\d)", received.text):
             sd.write_line(received.text)  # M28 stores lines instead of running them
-            self._send_done(CommandDone(received.number, room=self._room()))
+            self._send_done(CommandDone(received.number, room=self._room()) if
+                            self.protocol.rules.ok_while_saving else QUIET_OK)
             return
         # ADVANCED_OK's `ok` says the planner's room after the move: it waits for the planning.
         move = None if self.protocol.advanced_ok else plain_move(received.text)
@@ -232,6 +309,11 @@ class MarlinSession:
         if until is None:
             self._done(received, command, run.reply)
         else:
+            if command.code in self.protocol.rules.ok_before_run:  # Smoothieware's G1
+                run.record()  # (the journal before the `ok`, as ever)
+                if not self._drops_this_ok():  # (its slot stays taken until it is done)
+                    self._say(self.protocol.rules.ok)
+                self._ok_sent = received
             self._executor_idle = False
             self._waiting = (received, command, run, until)
             self._work.set()
@@ -255,6 +337,10 @@ class MarlinSession:
         reply = await self._finish_waiting(command, run, until)
         if self.printer.halted:
             self.announce(reply.lines)
+            if self.firmware.profile.halt.answers_all:
+                held = received is self._ok_sent  # (its `ok` went before it ran)
+                self._ok_sent = None
+                self._send_done(QUIET_OK if held else PLAIN_OK)  # a wait the halt ended: `ok`
             return
         self._done(received, command, reply)
 
@@ -274,19 +360,36 @@ class MarlinSession:
         return CommandRun(self.printer, text, self.journal, self._report, command)
 
     async def _finish_waiting(self, command: Command, run: CommandRun, until: float | None) -> Reply:
-        self._set_busy(until is not None and command.code not in SELF_REPORTING)
+        self._set_busy(until is not None and (command.code not in SELF_REPORTING
+                                              or self.firmware.profile.busy.while_heating))
         try:
-            return await finish(run, until)
+            if not self.firmware.profile.halt.answers_all:
+                return await finish(run, until)
+            with trio.CancelScope() as self._interrupt:  # cancelled by a halt: cut short
+                return await finish(run, until)
+            run.abandon()
+            return run.reply
         finally:
+            self._interrupt = None
             self._set_busy(False)
 
     def _done(self, received: CommandReceived, command: Command, reply: Reply) -> None:
-        if self.printer.halted:
+        if self.printer.halted and reply.effect != "halted":
             self.announce(reply.lines)
+            self._send(self.protocol.send(QUIET_OK))  # its slot is free for what is read next
             self._wake()
+            return
+        if reply.effect == "reset":  # RepRapFirmware's M999: the board resets, no `ok`
+            self.announce(reply.lines)
+            self._restart(command.code)
             return
         self._protocol_effects(command)
         self._say_done(received, command, reply)
+        if reply.effect == "halted":  # it halted the printer, and had its `ok` (RRF's M112)
+            self._wake()
+            if self.firmware.profile.halt.reads and not self._backlog:
+                self._feed_halted(b"")  # what came after it is read as a halted printer reads
+            return
         if reply.effect == "restart":  # FIRMWARE_RESTART, RESTART: its `ok` is out
             self.announce((state("restarting"),))
             self._restart(command.code)
@@ -303,23 +406,37 @@ class MarlinSession:
         quirks = self.firmware.quirks
         if quirks.broken_m29 and command.code == "M29":
             done = QUIET_OK  # `Done saving file.` and no `ok`
-        if quirks.ok_before_output:
+        held = received is self._ok_sent  # its `ok` went before it ran, its slot held since
+        if reply.effect == "no_ok" or held:
+            done = QUIET_OK  # (no_ok: a console command, Smoothieware's)
+            self._ok_sent = None
+        if quirks.ok_before_output or reply.effect == "ok_first":  # (RRF's M28)
             self._send_done(done)
             self.announce(reply.lines)
         else:
             self.announce(reply.lines)
             self._send_done(done)
+        if self.protocol.unread:  # what came while the queue was full is read now
+            self.feed(b"")
 
     def _send_done(self, done: CommandDone) -> None:
         """A command's `ok`, unless the quirk that drops every Nth drops this one."""
-        if self._drop_ok_every and not done.quiet:
-            self._oks += 1
-            if self._oks % self._drop_ok_every == 0:
-                done = QUIET_OK
+        if not done.quiet and self._drops_this_ok():
+            done = QUIET_OK
         self._send(self.protocol.send(done))
 
-    def quirks_changed(self) -> None:
+    def _drops_this_ok(self) -> bool:
+        """Whether the quirk that drops every Nth `ok` drops the one about to go."""
+        if not self._drop_ok_every:
+            return False
+        self._oks += 1
+        return self._oks % self._drop_ok_every == 0
+
+    def quirks_changed(self, quirks: Quirks) -> None:
         """The firmware's quirks changed (the control channel): from the next line on."""
+        if self.firmware.quirks is not quirks:
+            self.firmware.switch(quirks)  # (the firmware of another protocol's words)
+        self._words = self.firmware.words
         self.protocol.rules = self.firmware.line_rules()
         self._drop_ok_every = self.firmware.quirks.drop_ok_every
         if self.firmware.quirks.busy_interval is not None:
@@ -333,15 +450,18 @@ class MarlinSession:
 
     def _protocol_effects(self, command: Command) -> None:
         """M110, M113, M999 and M28 B1 act on the protocol, not on the printer."""
-        if command.code == "M110" and (number := command.value("N")) is not None:
+        if (command.code == "M110" and (number := command.value("N")) is not None
+                and not self.protocol.rules.m110_takes_line_number):
             self.protocol.last_n = int(number)
         elif command.code == "M113" and self.firmware.profile.busy.adjustable:
             if command.has("S"):
                 self.busy_interval = max(0.0, min(60.0, command.value("S", 0.0)))
             else:
                 self.announce((state("keepalive_interval", seconds=self.busy_interval),))
-        elif command.code == "M999":
+        elif command.code == "M999" and "M999" in self.printer.handlers:  # (Klipper has none)
             self._say(self.protocol.rules.resend.format(line=self.protocol.last_n + 1))
+            if self.protocol.rules.m999_ok:  # (Marlin 1.x: the resend's own, then M999's)
+                self._say(self.protocol.rules.ok)
         elif command.code == "M28" and self.printer.sd.binary_mode:
             self.printer.sd.binary_mode = False
             self._binary.enter(self.protocol.hand_over())  # read once its `ok` is out
@@ -368,7 +488,8 @@ class MarlinSession:
             now = trio.current_time()
             if self._busy and self.busy_interval > 0 and not self.printer.halted:
                 if now >= next_signal:
-                    self.announce((state("busy_processing"),))
+                    paused = self.printer.host_prompt.paused_for_user  # M0, M600's waits
+                    self.announce((state("busy_paused_for_user" if paused else "busy_processing"),))
                     next_signal = now + self.busy_interval
                 deadline = next_signal
             else:

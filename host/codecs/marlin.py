@@ -127,6 +127,7 @@ class LineKind(Enum):
     ACTION = "action"  # `//action:...` for the host
     ERROR = "Error"  # an Error: line that is no line error and no halt
     HALTED = "halted"  # kill(): `Error:Printer halted. kill() called!` or a kill reason
+    LOCKED = "locked"  # PASSWORD_FEATURE: `echo:Printer locked! (Unlock with M511 or LCD)`
 
 
 @dataclass(frozen=True)
@@ -184,6 +185,8 @@ def parse_line(text: str) -> Event:
         return Line(LineKind.WAIT, text)
     if _BUSY.match(text):
         return Line(LineKind.BUSY, text)
+    if lowered.startswith("echo:printer locked"):
+        return Line(LineKind.LOCKED, text)
     if lowered.startswith("echo:"):
         return Line(LineKind.ECHO, text)
     if text.startswith("//action:"):

@@ -39,6 +39,17 @@ Line errors: Marlin prints Error, Resend and ok together. That ok is not a permi
 (printcore's bug, docs/hosts.md): the host decides once the ok has come, or when another line or a
 short wait shows it was lost.
 
+Firmwares that check no line numbers (Klipper, RepRapFirmware) or read M110 their own way
+(Smoothieware) cannot be probed: the probe draws a plain `ok` (it ran as M105) or nothing (its
+bad checksum dropped) or a bare resend request (`rs N0`: no Error line, no ok). A printer
+that has never stated a counter and answers probes so
+(UNCHECKED_AFTER times; silence counts only from a printer that has said anything at all: one
+silent from the start gets one plain M105, which tells a dead port from RepRapFirmware, silent
+until asked and deaf to a bad checksum) is taken to check nothing: the host sends `N0 M110 N0` and numbers its
+lines on, one in flight, paced by `ok`; a resend request sends the line it names again (from the
+history); a line met by silence counts as done, unconfirmed. Nothing runs twice then, but a line
+lost on the way is lost: such a firmware gives a host no way to know.
+
 Patience is silence-based: the printer has said nothing about its work for `timeout`
 (`long_timeout` while a long command such as G28 or M109 runs). What counts: ok, line errors,
 busy keepalives, M109/M190's waiting lines. Reports it sends on its own at intervals (M155
@@ -66,7 +77,12 @@ from fake_marlin.host.codecs.marlin import (
     encode_sync,
 )
 from fake_marlin.host.cores.queue import CommandQueue, Ticket, is_long_command
-from fake_marlin.host.errors import PrinterHalted, PrinterNotResponding, PrinterReset
+from fake_marlin.host.errors import (
+    PrinterHalted,
+    PrinterLocked,
+    PrinterNotResponding,
+    PrinterReset,
+)
 
 SYNC_COMMAND = "M110 N0"
 KEEPALIVE_INTERVAL = 2.0  # Marlin's DEFAULT_KEEPALIVE_INTERVAL; M113 changes it (up to 60 s)
@@ -80,6 +96,11 @@ GARBLED_PATIENCE = 8
 # Answers in a row that count less than the printer had accepted, which prove it restarted: a
 # late answer to an earlier probe is one; three are no longer late.
 LOWER_COUNTS_MEAN_RESET = 3
+# Probes answered by a plain ok or by nothing, from a printer that has never stated a counter,
+# before the host takes it for one that checks no line numbers.
+UNCHECKED_AFTER = 2
+HELLO = b"M105\n"  # once, to a printer silent from the start (see _send_probe)
+_M511 = re.compile(r"\s*[Mm]0*511(?!\d)")
 _M113 = re.compile(r"\s*[Mm]0*113(?!\d)(?:.*?[Ss]\s*(\d+(?:\.\d*)?))?")
 
 
@@ -108,6 +129,7 @@ class _LineErrorReport:
     error_seen: bool = False
     resend: int | None = None
     resend_seen: bool = False
+    ok_seen: bool = False
 
     def printer_counter(self) -> int | None:
         """L, if both lines arrived and agree; None if the report cannot be believed."""
@@ -159,6 +181,10 @@ class MarlinCore(CommandQueue):
         self._probe_streak = 0  # probes without a believable answer
         self._probe_silences = 0  # of those, probes that drew no line at all
         self._lower_counts = 0  # answers since, each counting less than the printer had accepted
+        self._counter_seen = False  # the printer has stated its counter at least once
+        self._unbelieving = 0  # probes it answered with a plain ok or nothing, never a counter
+        self._hello_sent = False  # the plain M105 for a printer silent from the start
+        self.unchecked = False  # it checks no line numbers: see the module's docstring
         self._ok_during_probe: tuple[str, ...] | None = None
         self._report: _LineErrorReport | None = None
         self._last_heard = -math.inf  # the last sign of work on what the host sent
@@ -199,7 +225,7 @@ class MarlinCore(CommandQueue):
             and self._report is None
             and self._probe_since is None
             and not self._probe_wanted
-            and (not self._verify or self._confirmed >= self._next_number - 1)
+            and (not self._verify or self.unchecked or self._confirmed >= self._next_number - 1)
         )
 
     # -- time and transmission -----------------------------------------------------------
@@ -214,7 +240,7 @@ class MarlinCore(CommandQueue):
         if head is not None and head.needs_transmit:
             return [self._transmit(head, now)]
         if head is None and self._verify and self._synced:
-            if self._confirmed >= self._next_number - 1:
+            if self.unchecked or self._confirmed >= self._next_number - 1:
                 self._verify = False
             else:
                 return [self._send_probe(now)]
@@ -249,14 +275,26 @@ class MarlinCore(CommandQueue):
             self._settle_report(now)  # its ok was lost
         elif self._probe_since is not None:
             self.stats.timeouts += 1
-            self._probe_silences += self._last_line < self._probe_since
+            silent = self._last_line < self._probe_since
+            self._probe_silences += silent
+            # (Silence counts only from a printer that has said something: a dead port stays
+            # one, and is given up on.)
+            if not self._counter_seen and (silent and self.greeted
+                                           or self._ok_during_probe is not None):
+                self._unbelieving += 1
             self._probe_since, self._ok_during_probe = None, None
-            self._probe_wanted = True
+            if self._unbelieving >= UNCHECKED_AFTER and not self._synced:
+                self._check_nothing()
+            else:
+                self._probe_wanted = True
         else:
             head = self._in_flight()
             assert head is not None  # else there was no deadline: nothing in flight, no probe
             if head.state is LineState.RECEIVED:
                 self._complete(head, (), confirmed=False)
+            elif self.unchecked and head.ticket is not None:
+                self.stats.timeouts += 1
+                self._complete(head, (), confirmed=False)  # at most once: nothing to ask
             else:
                 self.stats.timeouts += 1
                 self._probe_wanted = True
@@ -290,7 +328,9 @@ class MarlinCore(CommandQueue):
         line.state = LineState.SENT
         line.since = now
         if line.ticket is None:
-            return encode_sync(line.text)
+            # (Without the line feed before it where the printer answers every line, blank
+            # ones too: Klipper would `ok` it, and the host run a line ahead of its oks.)
+            return encode_line(0, line.text) if self.unchecked else encode_sync(line.text)
         return encode_line(line.number, line.text)
 
     def _send_probe(self, now: float) -> bytes:
@@ -306,6 +346,11 @@ class MarlinCore(CommandQueue):
         self._ok_during_probe = None
         self.stats.probes += 1
         self.stats.packets_sent += 1
+        if not self.greeted and not self._hello_sent and self._probe_silences >= UNCHECKED_AFTER:
+            # Silent from the start, probes and all: a plain M105, which any firmware answers,
+            # tells a dead port from one that drops the probe (RepRapFirmware).
+            self._hello_sent = True
+            return HELLO
         return PROBE
 
     # -- what the printer says -----------------------------------------------------------
@@ -341,6 +386,7 @@ class MarlinCore(CommandQueue):
     def on_ok(self, ok: Ok, response: tuple[str, ...], now: float) -> None:
         self._heard(now)
         if self._report is not None:
+            self._report.ok_seen = True
             self._settle_report(now)  # the ok that closes a line error: no permission
             return
         if self._probe_since is not None:
@@ -351,19 +397,26 @@ class MarlinCore(CommandQueue):
         head = self._in_flight()
         if head is None:
             return  # nothing of ours is waiting for an ok
-        if not self._synced:
+        if not self._synced and self.unchecked:
+            self._synced, self._sync_line = True, None  # M110's ok: number on from 1
+        elif not self._synced:
             self._probe_wanted = True  # M110's ok: confirm with the counter itself
         elif ok.line_number is None or ok.line_number == head.number:
             self._complete(head, response, confirmed=True)
 
     def on_line_error(self, last_line: int | None, now: float) -> None:
         self._heard(now)
+        if self.unchecked:
+            return  # its resend request, if any, says which line
         if self._report is not None:
             self._settle_report(now)  # the previous report's ok was lost
         self._report = _LineErrorReport(now, last_line=last_line, error_seen=True)
 
     def on_resend(self, line: int | None, now: float) -> None:
         self._heard(now)
+        if self.unchecked:
+            self._resend_from(line)
+            return
         if self._report is not None and self._report.resend_seen:
             self._settle_report(now)
         if self._report is None:
@@ -378,6 +431,11 @@ class MarlinCore(CommandQueue):
         self._heard(now, busy=kind is LineKind.BUSY, working=working)
         if kind is LineKind.HALTED:
             raise PrinterHalted(f"the printer halted: {text}")
+        if kind is LineKind.LOCKED:
+            head = self._in_flight()
+            if head is None or not _M511.match(head.text):
+                raise PrinterLocked(f"the printer is locked ({text}): it runs nothing until "
+                                    "M511 P<password> unlocks it")
         if kind is LineKind.START:
             if self._synced:
                 raise PrinterReset(
@@ -389,7 +447,7 @@ class MarlinCore(CommandQueue):
             # Marlin's queue is empty: the line in flight ran (its ok was lost) or never came.
             head = self._in_flight()
             if head is not None and self._probe_since is None and not self._probe_wanted:
-                if head.state is LineState.RECEIVED:
+                if head.state is LineState.RECEIVED or self.unchecked:
                     self._complete(head, (), confirmed=False)
                 else:
                     self._probe_wanted = True
@@ -415,10 +473,18 @@ class MarlinCore(CommandQueue):
         if self._probe_since is not None:  # the answer to the probe (no line goes out meanwhile)
             self._probe_since = None
             ok, self._ok_during_probe = self._ok_during_probe, None
-            if counter is None:
-                self._probe_wanted = True
-            else:
+            if counter is not None:
                 self._printer_has(counter, now, ok)
+                return
+            # Smoothieware's answer to anything it will not take: `rs N<n>` alone, never an
+            # Error line, never an ok: no counter to read, ever.
+            if (report.resend_seen and not report.error_seen and not report.ok_seen
+                    and not self._counter_seen and not self._synced):
+                self._unbelieving += 1
+                if self._unbelieving >= UNCHECKED_AFTER:
+                    self._check_nothing()
+                    return
+            self._probe_wanted = True
             return
         self.stats.rejects += 1
         if not self._synced:
@@ -435,8 +501,33 @@ class MarlinCore(CommandQueue):
         else:
             self._probe_wanted = True
 
+    def _check_nothing(self) -> None:
+        """The printer checks no line numbers (the module's docstring): M110 N0, then on."""
+        self.unchecked = True
+        self._probe_wanted = False
+        self._sync_line = _Line(0, SYNC_COMMAND, None)
+
+    def _resend_from(self, line: int | None) -> None:
+        """A firmware that checks numbers but cannot be probed (Smoothieware's `rs N5`): the
+        line it names and those after it go again, if the host still has them."""
+        if line is None or line < 1 or line >= self._next_number:
+            return
+        head = self._lines[0] if self._lines else None
+        if head is not None and head.number == line:
+            head.needs_transmit = True
+            return
+        if head is not None and head.number < line:
+            return  # ahead of what is in flight: nothing to send again
+        try:
+            self._resend_missing(line - 1)
+        except PrinterReset:
+            return  # older than the history: it ran, or is lost for good
+        for again in self._lines:  # it dropped those after it too: each goes again in turn
+            again.needs_transmit, again.state = True, LineState.SENT
+
     def _printer_has(self, last: int, now: float, late_ok: tuple[str, ...] | None = None) -> None:
         """The printer's counter is `last`: it accepted every line up to it, none after."""
+        self._counter_seen = True
         if not self._synced:
             self._probe_streak = self._probe_silences = 0
             self._sync(last)
