@@ -7,11 +7,12 @@
 What it installs, each at a pinned version outside the checkout, so that a fresh clone builds
 it once and later runs reuse it:
 - the real hosts' venvs under ~/.cache/fake-marlin/venvs (tests/hosts/venvs.py): OctoPrint,
-  Printrun's printcore, binproto2; the bench (`fake-marlin bench`) finds them there too;
+  Printrun's printcore, binproto2, PrusaLink; the bench (`fake-marlin bench`) finds them there too;
 - npm packages under ~/.cache/fake-marlin/npm (tests/hosts/npm.py): cncjs, playwright-core
   (the report page's browser test), pyright (the unresolved-import check);
 - Debian packages with apt (tests/hosts/apt.py): avrdude, Chromium, and Node.js and npm where
-  the machine has none (apt needs root).
+  the machine has none; the libraries PrusaLink's venv needs, libcap-dev, libturbojpeg0 and
+  libmagic1, before it (apt needs root).
 
 The tests install nothing: a test whose tool is missing skips, naming this command
 (`not_installed`). One line per item says whether it was built now or found cached, where, and
@@ -65,7 +66,7 @@ def _venv(host: venvs.Host) -> Item:
         venv = venvs.ensure(host)
         return Found(venv.path, venv.built_now, venv.install_seconds)
 
-    return Item(host.name, host.label, find, install)
+    return Item(host.name, host.label, find, install, needs=host.apt)
 
 
 def _npm(package: npm.Package) -> Item:
@@ -98,8 +99,24 @@ def _apt(tool: apt.Tool) -> Item:
     return Item(tool.binary, f"{tool.label} (Debian's {tool.package})", find, install)
 
 
+def _library(library: apt.Library) -> Item:
+    def find() -> Found | None:
+        installed = apt.find_library(library)
+        return None if installed is None else Found(installed, False, None)
+
+    def install() -> Found:
+        if (installed := apt.find_library(library)) is not None:
+            return Found(installed, False, None)
+        started = time.monotonic()
+        installed = apt.ensure_library(library)
+        return Found(installed, True, round(time.monotonic() - started, 1))
+
+    return Item(library.package, f"{library.label} (Debian's {library.package})", find, install)
+
+
 ITEMS = (
     *(_apt(tool) for tool in (apt.NODE, apt.NPM, apt.AVRDUDE, apt.CHROMIUM)),
+    *(_library(library) for library in apt.LIBRARIES),
     *(_venv(host) for host in venvs.HOSTS),
     *(_npm(package) for package in npm.PACKAGES),
 )

@@ -1,10 +1,11 @@
 """Print a G-code file with Printrun's printcore, the library behind Pronterface and pronsole.
 
 Run with the printrun venv's python: `python printcore_driver.py PORT GCODE_FILE --timeout S`.
-Prints one JSON object (every line printcore wrote, errors it reported, elapsed time) as the last
-line of stdout, and exits 0 only if the whole file was acknowledged without an error. printcore
-has no acknowledgement timeout, so a line the printer never answers would hang it forever: the
-overall timeout ends the run and names the line it was stuck on.
+Prints one JSON object (every line printcore wrote, errors it reported, the lines each way in
+order as `wire`, elapsed time) as the last line of stdout, and exits 0 only if the whole file was
+acknowledged without an error. printcore has no acknowledgement timeout, so a line the printer
+never answers would hang it forever: the overall timeout ends the run and names the line it was
+stuck on.
 """
 
 # printrun lives only in the host venv this driver runs under (tests/hosts/venvs.py), not in .venv.
@@ -38,7 +39,7 @@ def main() -> int:
     args = parser.parse_args()
     deadline = time.monotonic() + args.timeout
     summary = {"sent": [], "errors": [], "received_tail": [], "printer_errors": [], "resends": 0,
-               "unknown_commands": [], "elapsed": None, "stuck_on": None}
+               "unknown_commands": [], "elapsed": None, "stuck_on": None, "wire": []}
     logging.getLogger().addHandler(Errors(summary["errors"]))
     try:
         done = drive(args, deadline, summary)
@@ -64,10 +65,12 @@ def drive(args, deadline: float, summary: dict) -> bool:
 
     def on_send(command, gline):
         summary["sent"].append(command)
+        summary["wire"].append("> " + command)
         last["sent"] = time.monotonic()
 
     def on_receive(line):
         received.append(line.rstrip())
+        summary["wire"].append("< " + line.rstrip())
         del received[:-20]
         if line.startswith("Error:"):
             summary["printer_errors"].append(line.rstrip())

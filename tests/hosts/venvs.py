@@ -2,8 +2,9 @@
 
 The hosts pin libraries (OctoPrint pins Flask, werkzeug, pydantic) that must not meet the
 project's own, and installing them takes a while, so each gets its own venv cached under
-`~/.cache/fake-marlin/venvs/<name>-<version>` (FAKE_MARLIN_VENVS moves it): `python -m
-tests.hosts.install` builds it once (`ensure`), the tests and the bench only look for it (`find`).
+`~/.cache/fake-marlin/venvs/<name>-<version>` (FAKE_MARLIN_VENVS moves it; PrusaLink's is
+`prusalink-0.8.1`): `python -m tests.hosts.install` builds it once (`ensure`), the tests and the
+bench only look for it (`find`).
 """
 
 import sys
@@ -23,6 +24,7 @@ class Host:
     label: str  # what a person calls it
     pip_args: tuple[str, ...]
     module: str  # imported once the install is done, to prove it works
+    apt: tuple[str, ...] = ()  # Debian packages it needs first (tests/hosts/apt.LIBRARIES)
 
 
 OCTOPRINT = Host("octoprint", "1.11", "OctoPrint 1.11", ("octoprint>=1.11,<1.12",),
@@ -33,6 +35,11 @@ PRINTRUN = Host("printrun", "2.2.0", "Printrun 2.2.0 (printcore)",
 # Marlin's binary transfer client; it also requires `heatshrink`, which it only falls back from.
 BINPROTO = Host("binproto", "0.0.7", "binproto2 0.0.7 (marlin-binary-protocol)", (
     "--no-deps", "marlin-binary-protocol==0.0.7", "heatshrink2==0.15.0", "pyserial"), "binproto2")
+# Prusa's print server for the MK3S (tests/hosts/prusalink.py runs it). pip builds python-prctl
+# against libcap's headers; importing prusa.link.daemon loads TurboJPEG and libmagic (ctypes),
+# so the check proves the two runtime libraries are there as well.
+PRUSALINK = Host("prusalink", "0.8.1", "PrusaLink 0.8.1", ("prusalink==0.8.1",),
+                 "prusa.link.daemon", apt=("libcap-dev", "libturbojpeg0", "libmagic1"))
 
 
 class VenvError(RuntimeError):
@@ -50,7 +57,7 @@ class Venv:
         return self.path / "bin" / "python"
 
 
-HOSTS = (OCTOPRINT, PRINTRUN, BINPROTO)
+HOSTS = (OCTOPRINT, PRINTRUN, BINPROTO, PRUSALINK)
 
 
 def find(host: Host) -> Venv | None:
