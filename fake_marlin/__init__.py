@@ -6,4 +6,4 @@ The installed package holds three parts, kept in their own top-level folders of 
 (wire facts both share).
 """
 
-__version__ = "0.3.0"
+__version__ = "0.4.0"
