@@ -110,6 +110,15 @@ def test_a_failing_case_written_out_fails_again_alone_with_the_same_digest(tmp_p
     assert f"{failed['name']}: {failed['detail']}" == result.reason
 
 
+def test_another_firmware_meets_the_same_faults_under_a_name_of_its_own(tmp_path):
+    marlin = fuzz.generate("marlin", 9, 4)
+    prusa = fuzz.generate("marlin", 9, 4, firmware="prusa")
+    assert prusa["printer"] == {**marlin["printer"], "firmware": "prusa"}
+    assert prusa.get("fault") == marlin.get("fault") and prusa["job"] == marlin["job"]
+    assert prusa["name"] == "marlin-prusa-9-4" != marlin["name"]
+    assert load(write(tmp_path, prusa)).printer.firmware == "prusa"
+
+
 def test_a_reason_is_one_line_fit_for_a_comment():
     reason = "FAIL: line one\nline two \x00\x1b 'start' " + "y" * 1000
     text = fuzz.scenario_text({"name": "x"}, reason)
@@ -127,6 +136,8 @@ def test_a_reason_is_one_line_fit_for_a_comment():
     (["--jobs", "0"], "--jobs must be at least 1"),
     (["--moves", "0"], "--moves must be at least 1"),
     (["--out", "FILE"], "cannot make the directory"),
+    (["--firmware", "nope"], "no firmware 'nope'"),
+    (["--protocol", "ultimaker", "--firmware", "prusa"], "fuzzed with --protocol marlin"),
 ])
 def test_the_cli_refuses_bad_arguments(tmp_path, capsys, args, message):
     (tmp_path / "FILE").write_text("not a directory")

@@ -151,6 +151,9 @@ def _add_fuzz_parser(commands: Commands) -> argparse.ArgumentParser:
     )
     fuzz.add_argument("--protocol", required=True, choices=[*FUZZ_PROTOCOLS, "all"],
                       help="the protocol to fuzz, or all four")
+    fuzz.add_argument("--firmware", default="marlin", metavar="NAME",
+                      help="with --protocol marlin: the printer's firmware (default marlin); the "
+                      "same faults for every firmware of one seed")
     fuzz.add_argument("--runs", type=int, required=True, help="cases per protocol")
     fuzz.add_argument("--seed", type=int, required=True, help="the campaign's seed (0 or more)")
     fuzz.add_argument("--out", required=True, metavar="DIR", help="where failing cases are written")
@@ -180,11 +183,21 @@ def fuzz_main(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
     except OSError as error:
         parser.error(f"--out {out}: cannot make the directory: {error.strerror or error}")
     protocols = FUZZ_PROTOCOLS if args.protocol == "all" else (args.protocol,)
+    if args.firmware != "marlin":
+        from fake_marlin.emulator.firmware import ProfileError, load_profile
+
+        try:
+            profile = load_profile(args.firmware)
+        except ProfileError as error:
+            parser.error(f"--firmware: {error}")
+        if args.protocol != "marlin" or "marlin" not in profile.protocols:
+            parser.error("--firmware: a firmware other than marlin is fuzzed with --protocol "
+                         "marlin, and must speak it")
     progress = _Progress() if sys.stderr.isatty() else None
     try:
         summaries = run_campaign(
             protocols, args.seed, args.runs, out, jobs=args.jobs or default_jobs(),
-            moves=args.moves, keep_all=args.keep_all, progress=progress,
+            moves=args.moves, keep_all=args.keep_all, progress=progress, firmware=args.firmware,
         )
     except KeyboardInterrupt:
         print("\nfake-marlin scenario fuzz: interrupted", file=sys.stderr)

@@ -32,7 +32,7 @@ class Case:
 
     @property
     def name(self) -> str:
-        return fuzz.case_name(self.protocol, self.seed, self.number)
+        return str(self.table["name"])  # fuzz.case_name's, with the firmware where not Marlin
 
     @property
     def text(self) -> str:
@@ -84,8 +84,9 @@ class Summary:
                 f"{self.wall_seconds:.1f} s wall")
 
 
-def cases(protocol: str, seed: int, runs: int, moves: int | None = None) -> list[Case]:
-    return [Case(protocol, seed, number, fuzz.generate(protocol, seed, number, moves))
+def cases(protocol: str, seed: int, runs: int, moves: int | None = None,
+          firmware: str = "marlin") -> list[Case]:
+    return [Case(protocol, seed, number, fuzz.generate(protocol, seed, number, moves, firmware))
             for number in range(1, runs + 1)]
 
 
@@ -135,6 +136,7 @@ Progress = Callable[[str, int, int, int], None]  # protocol, done, total, failed
 def run_campaign(
     protocols: Iterable[str], seed: int, runs: int, out: Path, jobs: int = 1,
     moves: int | None = None, keep_all: bool = False, progress: Progress | None = None,
+    firmware: str = "marlin",
 ) -> list[Summary]:
     """Run `runs` cases per protocol, one protocol after another, in `jobs` worker processes;
     write each failing case (each case, with `keep_all`) to `out`."""
@@ -148,16 +150,17 @@ def run_campaign(
     try:
         for protocol in protocols:
             summaries.append(_run_protocol(
-                protocol, seed, runs, out, executor, moves, keep_all, progress))
+                protocol, seed, runs, out, executor, moves, keep_all, progress, firmware))
     finally:
         if executor is not None:
             executor.shutdown(wait=True, cancel_futures=True)
     return summaries
 
 
-def _run_protocol(protocol, seed, runs, out, executor, moves, keep_all, progress) -> Summary:
+def _run_protocol(protocol, seed, runs, out, executor, moves, keep_all, progress,
+                  firmware="marlin") -> Summary:
     started = time.perf_counter()
-    todo = cases(protocol, seed, runs, moves)
+    todo = cases(protocol, seed, runs, moves, firmware)
     results: dict[int, CaseResult] = {}
     failed = 0
 
@@ -176,7 +179,7 @@ def _run_protocol(protocol, seed, runs, out, executor, moves, keep_all, progress
                    for index, case in enumerate(todo)}
         for future in concurrent.futures.as_completed(futures):
             done(futures[future], future.result())
-    summary = Summary(protocol, seed)
+    summary = Summary(protocol if firmware == "marlin" else f"{protocol} ({firmware})", seed)
     for index, case in enumerate(todo):
         result = results[index]
         summary.runs += 1

@@ -86,8 +86,10 @@ SECONDS_PER_MOVE = 0.4  # about what a generated job takes (simulated); `at` tri
 Table = dict[str, Any]
 
 
-def case_name(protocol: str, seed: int, number: int) -> str:
+def case_name(protocol: str, seed: int, number: int, firmware: str = "marlin") -> str:
     """The case's name, and its file's stem: `marlin-1-7`."""
+    if firmware != "marlin":
+        return f"{protocol}-{firmware}-{seed}-{number}"
     return f"{protocol}-{seed}-{number}"
 
 
@@ -96,8 +98,10 @@ def case_random(protocol: str, seed: int, number: int) -> random.Random:
     return random.Random(f"{seed}/{protocol}/{number}")
 
 
-def generate(protocol: str, seed: int, number: int, moves: int | None = None) -> Table:
-    """Case `number` of the campaign `seed` for `protocol`: a scenario, as its TOML tables."""
+def generate(protocol: str, seed: int, number: int, moves: int | None = None,
+             firmware: str = "marlin") -> Table:
+    """Case `number` of the campaign `seed` for `protocol`: a scenario, as its TOML tables.
+    `firmware`: the printer's (the same faults for every firmware of one seed and number)."""
     if protocol not in PROTOCOLS:
         raise ValueError(f"protocol must be one of {', '.join(PROTOCOLS)}, not {protocol!r}")
     draw = case_random(protocol, seed, number)
@@ -114,6 +118,8 @@ def generate(protocol: str, seed: int, number: int, moves: int | None = None) ->
 
     faults: list[Table] = []
     printer: Table = {"protocol": protocol}
+    if firmware != "marlin":
+        printer["firmware"] = firmware
     host: Table = {"protocol": protocol}
     for direction in DIRECTIONS:
         for kind in ("bit-errors", "drop-bytes"):
@@ -191,8 +197,10 @@ def generate(protocol: str, seed: int, number: int, moves: int | None = None) ->
         kind = "exactly-once"
         expect = {"outcome": "completed", "exactly_once": True, "allow_undetectable": True}
     table: Table = {
-        "name": case_name(protocol, seed, number),
-        "description": (f"fake-marlin scenario fuzz --protocol {protocol} --seed {seed}: "
+        "name": case_name(protocol, seed, number, firmware),
+        "description": (f"fake-marlin scenario fuzz --protocol {protocol}"
+                        + (f" --firmware {firmware}" if firmware != "marlin" else "")
+                        + f" --seed {seed}: "
                         f"case {number}, {kind}, harshness {harshness:.2f}, {len(faults)} faults"),
         "seed": draw.randrange(2**31),
         "printer": printer,
