@@ -229,9 +229,9 @@ def drive(port: str, gcode: str, deadline: float, summary: dict) -> bool:
                                      f"last sent {summary['sent'][-1:]}")
             return False
         summary["print_elapsed"] = round(time.monotonic() - printing, 2)
-        # Done is announced before the state is back to operational.
-        wait_for(lambda: machine.getState() == comm.MachineCom.STATE_OPERATIONAL,
-                 min(deadline, time.monotonic() + 5))
+        # Done is announced before the state is back to operational: that waits for the last
+        # command's ok, and when the firmware dropped it, for OctoPrint's communication timeout.
+        wait_for(lambda: machine.getState() == comm.MachineCom.STATE_OPERATIONAL, deadline)
         return summary["done"] and machine.getState() == comm.MachineCom.STATE_OPERATIONAL
     finally:
         if machine.isError() or machine.getErrorString():
