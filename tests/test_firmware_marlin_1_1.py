@@ -7,8 +7,8 @@ from contextlib import asynccontextmanager
 import trio
 
 from fake_marlin.emulator.faults.rules import FaultKind, FaultRule, Trigger
-from fake_marlin.emulator.protocols.marlin import xor_checksum
 from fake_marlin.testing import memory_printer
+from tests.terminal import RawPort, numbered
 
 REPORT = [
     b"echo:  G21    ; (mm)",
@@ -55,56 +55,6 @@ IDLE = b"ok T:21.00 /0.00 B:21.00 /0.00 @:0 B@:0\n"
 KILLED = b"Error:Printer halted. kill() called!\n"
 
 
-def numbered(n: int, command: str) -> str:
-    body = f"N{n} {command}"
-    return f"{body}*{xor_checksum(body)}"
-
-
-class Port:
-    """A host's end of the serial line, in raw bytes."""
-
-    def __init__(self, stream) -> None:
-        self.stream = stream
-        self.buffer = b""
-
-    async def send(self, line: str) -> None:
-        await self.stream.send_all(line.encode() + b"\n")
-
-    async def read_until(self, ending: bytes, timeout: float = 600.0) -> bytes:
-        with trio.fail_after(timeout):
-            while ending not in self.buffer:
-                self.buffer += await self.stream.receive_some(4096)
-        at = self.buffer.index(ending) + len(ending)
-        data, self.buffer = self.buffer[:at], self.buffer[at:]
-        return data
-
-    async def quiet_for(self, seconds: float) -> bytes:
-        while True:
-            with trio.move_on_after(seconds) as waited:
-                self.buffer += await self.stream.receive_some(4096)
-            if waited.cancelled_caught:
-                data, self.buffer = self.buffer, b""
-                return data
-
-    async def ask(self, line: str, seconds: float = 3.0) -> bytes:
-        await self.send(line)
-        return await self.quiet_for(seconds)
-
-    async def command(self, line: str, timeout: float = 600.0) -> bytes:
-        """Send a line; what the printer says up to and including its `ok` line."""
-        await self.send(line)
-        return await self.read_until_ok(timeout)
-
-    async def read_until_ok(self, timeout: float = 600.0) -> bytes:
-        with trio.fail_after(timeout):
-            while not re.search(rb"(^|\n)ok[^\n]*\n", self.buffer):
-                self.buffer += await self.stream.receive_some(4096)
-        match = re.search(rb"(^|\n)ok[^\n]*\n", self.buffer)
-        assert match is not None
-        data, self.buffer = self.buffer[:match.end()], self.buffer[match.end():]
-        return data
-
-
 @asynccontextmanager
 async def marlin_1_1(tmp_path=None):
     options: dict = {"firmware": "marlin-1.1", "protocol": "marlin"}
@@ -112,17 +62,17 @@ async def marlin_1_1(tmp_path=None):
         (tmp_path / "sd").mkdir()
         options["sd_dir"] = tmp_path / "sd"
     async with memory_printer(**options) as printer:
-        port = Port(printer.open())
+        port = RawPort(printer.open())
         assert await port.read_until(b"echo:SD card ok\n") == GREETING
         yield port, printer
 
 
 async def test_the_greeting_has_echo_before_the_reset_a_blank_line_and_the_settings(autojump_clock):
     async with memory_printer(firmware="marlin-1.1") as printer:  # --protocol auto
-        port = Port(printer.open())
+        port = RawPort(printer.open())
         # (auto: the board greets once the host's first byte says it speaks Marlin's lines)
         assert await port.ask("M105") == GREETING + IDLE
-        again = Port(printer.open())  # DTR resets the board: the greeting again
+        again = RawPort(printer.open())  # DTR resets the board: the greeting again
         assert await again.ask("M105") == GREETING + IDLE
         assert printer.server.boots == 3
 
@@ -204,7 +154,7 @@ async def test_m112_kills_with_one_line_and_nothing_revives_it_but_a_reset(autoj
         assert await port.ask("M112", 5) == KILLED  # no echo:M112 Shutdown, no //action:
         assert await port.ask("M105", 5) == b""
         assert await port.ask("M999", 10) == b""  # kill() reads nothing more: no reboot either
-        again = Port(printer.open())
+        again = RawPort(printer.open())
         assert await again.read_until(b"echo:SD card ok\n") == GREETING
         assert await again.ask("M105") == IDLE
 

@@ -10,62 +10,12 @@ import trio
 
 from fake_marlin.emulator.printer.failures import Failure, FailureKind, apply
 from fake_marlin.testing import memory_printer
-from tests.terminal import numbered
+from tests.terminal import Terminal as Wire, numbered
 
 COLD = "T:21.0 /0.0 T0:21.0 /0.0 B:21.0 /0.0"  # M105's payload, T0 selected, heaters off
 M115 = (b"FIRMWARE_NAME: RepRapFirmware for Duet 3 MB6HC FIRMWARE_VERSION: 3.5.3 "
         b"ELECTRONICS: Duet 3 MB6HC v1.02b or later FIRMWARE_DATE: 2024-09-18 12:00:00\nok\n")
 REPORT = re.compile(r"T:\d+\.\d /\d+\.\d T0:\d+\.\d /\d+\.\d B:\d+\.\d /\d+\.\d")
-
-
-class Wire:
-    """A host on the USB line: raw bytes out, UTF-8 lines back (RRF's degree sign)."""
-
-    def __init__(self, stream) -> None:
-        self.stream = stream
-        self.received = b""  # every byte since the last take()
-        self._buffer = b""
-
-    async def send(self, line: str) -> None:
-        await self.stream.send_all(line.encode() + b"\n")
-
-    async def read_line(self) -> str:
-        while b"\n" not in self._buffer:
-            chunk = await self.stream.receive_some(4096)
-            self.received += chunk
-            self._buffer += chunk
-        line, self._buffer = self._buffer.split(b"\n", 1)
-        return line.decode("utf-8")
-
-    async def read_until(self, predicate, timeout: float = 600.0) -> list[str]:
-        lines = []
-        with trio.fail_after(timeout):
-            while True:
-                lines.append(await self.read_line())
-                if predicate(lines[-1]):
-                    return lines
-
-    async def command(self, line: str, timeout: float = 600.0) -> list[str]:
-        """One line sent; what came back up to and including its `ok`."""
-        await self.send(line)
-        return await self.read_until(lambda text: text.startswith("ok"), timeout)
-
-    async def exchange(self, line: str) -> bytes:
-        """One line sent; the exact bytes back, up to and including its `ok` line."""
-        self.take()
-        await self.command(line)
-        return self.take()
-
-    async def quiet_for(self, seconds: float) -> list[str]:
-        lines = []
-        with trio.move_on_after(seconds):
-            while True:
-                lines.append(await self.read_line())
-        return lines
-
-    def take(self) -> bytes:
-        data, self.received = self.received, b""
-        return data
 
 
 @asynccontextmanager

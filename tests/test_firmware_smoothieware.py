@@ -9,8 +9,8 @@ import trio
 
 from fake_marlin.emulator.printer import failures
 from fake_marlin.emulator.printer.failures import Failure, FailureKind
-from fake_marlin.emulator.protocols.marlin import xor_checksum
 from fake_marlin.testing import memory_printer
+from tests.terminal import RawPort, numbered
 
 GREETING = b"Smoothie\r\nok\r\n"
 IDLE_TEMPERATURES = b"ok T:21.0 /0.0 @0 B:21.0 /0.0 @0 \n"
@@ -22,51 +22,12 @@ M115 = (b"FIRMWARE_NAME:Smoothieware, FIRMWARE_URL:http%3A//smoothieware.org, "
 WAITING_LINE = re.compile(rb"T:\d+\.\d /200\.0 @255\n")
 
 
-def numbered(n: int, command: str) -> str:
-    body = f"N{n} {command}"
-    return f"{body}*{xor_checksum(body)}"
-
-
-class Port:
-    """A host's end of the USB serial, in raw bytes."""
-
-    def __init__(self, stream) -> None:
-        self.stream = stream
-        self.buffer = b""
-
-    async def send(self, data: bytes | str) -> None:
-        await self.stream.send_all(data if isinstance(data, bytes) else data.encode() + b"\n")
-
-    async def read_until(self, ending: bytes, timeout: float = 600.0) -> bytes:
-        """Everything up to and including the first `ending`."""
-        with trio.fail_after(timeout):
-            while ending not in self.buffer:
-                self.buffer += await self.stream.receive_some(4096)
-        at = self.buffer.index(ending) + len(ending)
-        data, self.buffer = self.buffer[:at], self.buffer[at:]
-        return data
-
-    async def quiet_for(self, seconds: float) -> bytes:
-        """Everything said until it has been quiet for `seconds`."""
-        while True:
-            with trio.move_on_after(seconds) as waited:
-                self.buffer += await self.stream.receive_some(4096)
-            if waited.cancelled_caught:
-                data, self.buffer = self.buffer, b""
-                return data
-
-    async def ask(self, line: bytes | str, seconds: float = 5.0) -> bytes:
-        """Send a line; all the printer says until it has been quiet for `seconds`."""
-        await self.send(line)
-        return await self.quiet_for(seconds)
-
-
 @asynccontextmanager
 async def smoothie(sd_dir: Path | None = None, **options):
     if sd_dir is not None:
         options["sd_dir"] = sd_dir
     async with memory_printer(firmware="smoothieware", **options) as printer:
-        port = Port(printer.open())
+        port = RawPort(printer.open(), quiet=5.0)
         assert await port.quiet_for(1) == GREETING
         yield port, printer
 
@@ -76,7 +37,7 @@ async def test_opening_the_port_says_smoothie_and_ok_and_resets_nothing(autojump
     async with smoothie() as (port, printer):
         assert await port.ask("G1 X12.5 Y3 F3000") == b"ok\n"
         assert await port.ask(numbered(0, "M105")) == IDLE_TEMPERATURES
-        again = Port(printer.open())  # a second open: the board runs on
+        again = RawPort(printer.open(), quiet=5.0)  # a second open: the board runs on
         assert await again.quiet_for(1) == GREETING
         assert await again.ask("M114") == b"ok C: X:12.5000 Y:3.0000 Z:0.0000 E:0.0000 \n"
         # the line counter ran on too: N0 again is not the next line

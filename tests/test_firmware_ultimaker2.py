@@ -8,8 +8,8 @@ import trio
 
 from fake_marlin.emulator.faults.rules import FaultKind, FaultRule, Trigger
 from fake_marlin.emulator.printer.planner import MAX_MOVES
-from fake_marlin.emulator.protocols.marlin import xor_checksum
 from fake_marlin.testing import memory_printer
+from tests.terminal import RawPort, numbered
 
 SETTINGS = [
     b"echo:Steps per unit:",
@@ -48,53 +48,6 @@ STOPPED = (b"Printer stopped due to errors. Fix the error and use M999 to restar
            b"(Temperature is reset. Set it after restarting)")
 
 
-def numbered(n: int, command: str) -> str:
-    body = f"N{n} {command}"
-    return f"{body}*{xor_checksum(body)}"
-
-
-class Port:
-    """A host's end of the serial line, in raw bytes."""
-
-    def __init__(self, stream) -> None:
-        self.stream = stream
-        self.buffer = b""
-
-    async def send(self, line: str) -> None:
-        await self.stream.send_all(line.encode() + b"\n")
-
-    async def read_until(self, ending: bytes, timeout: float = 600.0) -> bytes:
-        with trio.fail_after(timeout):
-            while ending not in self.buffer:
-                self.buffer += await self.stream.receive_some(4096)
-        at = self.buffer.index(ending) + len(ending)
-        data, self.buffer = self.buffer[:at], self.buffer[at:]
-        return data
-
-    async def quiet_for(self, seconds: float) -> bytes:
-        while True:
-            with trio.move_on_after(seconds) as waited:
-                self.buffer += await self.stream.receive_some(4096)
-            if waited.cancelled_caught:
-                data, self.buffer = self.buffer, b""
-                return data
-
-    async def ask(self, line: str, seconds: float = 3.0) -> bytes:
-        await self.send(line)
-        return await self.quiet_for(seconds)
-
-    async def command(self, line: str, timeout: float = 600.0) -> bytes:
-        """Send a line; what the printer says up to and including its `ok` line."""
-        await self.send(line)
-        with trio.fail_after(timeout):
-            while not re.search(rb"(^|\n)ok[^\n]*\n", self.buffer):
-                self.buffer += await self.stream.receive_some(4096)
-        match = re.search(rb"(^|\n)ok[^\n]*\n", self.buffer)
-        assert match is not None
-        data, self.buffer = self.buffer[:match.end()], self.buffer[match.end():]
-        return data
-
-
 @asynccontextmanager
 async def ultimaker2(tmp_path=None, protocol: str = "marlin"):
     options: dict = {"firmware": "ultimaker2", "protocol": protocol}
@@ -102,18 +55,18 @@ async def ultimaker2(tmp_path=None, protocol: str = "marlin"):
         (tmp_path / "sd").mkdir()
         options["sd_dir"] = tmp_path / "sd"
     async with memory_printer(**options) as printer:
-        port = Port(printer.open())
+        port = RawPort(printer.open())
         assert await port.read_until(b"echo:SD card ok\n") == GREETING
         yield port, printer
 
 
 async def test_the_greeting_is_marlin_1_0s_and_comes_with_every_open(autojump_clock):
     async with memory_printer(firmware="ultimaker2") as printer:  # --protocol auto
-        port = Port(printer.open())
+        port = RawPort(printer.open())
         # (auto: the board greets once the host's first byte says it speaks Marlin's lines)
         assert await port.ask("M105") == GREETING + IDLE
         assert printer.server.boots == 2  # power-up, then the host's open (DTR)
-        again = Port(printer.open())
+        again = RawPort(printer.open())
         assert await again.ask("M105") == GREETING + IDLE
         assert printer.server.boots == 3
 

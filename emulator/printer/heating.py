@@ -50,7 +50,8 @@ def temperature_report(printer, now: float, tool: int | None = None,
     return Statement(key, heats(printer, now, tool))
 
 
-def _target_tool(printer, command: Command) -> int | Reply:
+def target_tool(printer, command: Command) -> int | Reply:
+    """The hotend a command's T word names (the active one without it), or the refusal."""
     tool = command.value("T")
     tool = printer.active_tool if tool is None else int(tool)
     if 0 <= tool < len(printer.hotends):
@@ -59,7 +60,7 @@ def _target_tool(printer, command: Command) -> int | Reply:
 
 
 def set_hotend(printer, command: Command, now: float):
-    tool = _target_tool(printer, command)
+    tool = target_tool(printer, command)
     if isinstance(tool, Reply):
         return tool
     if command.has("S"):
@@ -81,7 +82,7 @@ def set_bed(printer, command: Command, now: float):
 
 
 def wait_hotend(printer, command: Command, now: float):
-    tool = _target_tool(printer, command)
+    tool = target_tool(printer, command)
     if isinstance(tool, Reply):
         return tool
     heater = printer.hotends[tool]
@@ -139,7 +140,7 @@ def _set_and_wait(printer, heater, command: Command, now: float, tool: int | Non
 
 
 def report_temperatures(printer, command: Command, now: float):
-    tool = _target_tool(printer, command)
+    tool = target_tool(printer, command)
     if isinstance(tool, Reply):
         return tool
     return Reply(answer=temperature_report(printer, now, tool))

@@ -268,14 +268,6 @@ def report_temperatures(printer, command: Command, now: float):
     return Reply(answer=heating.temperature_report(printer, now))
 
 
-def _tool(printer, command: Command) -> int | Reply:
-    tool = command.value("T")
-    tool = printer.active_tool if tool is None else int(tool)
-    if 0 <= tool < len(printer.hotends):
-        return tool
-    return reply(state("invalid_extruder", code=command.code, tool=tool))
-
-
 def _set_target(printer, heater, target: float, now: float) -> None:
     if heater_number(printer, heater) not in rrf_state(printer, now).faults:
         heater.set_target(now, target)
@@ -283,7 +275,7 @@ def _set_target(printer, heater, target: float, now: float) -> None:
 
 def set_hotend(printer, command: Command, now: float):
     """M104 S/R [T]: the tool's active and standby temperature; no reply."""
-    tool = _tool(printer, command)
+    tool = heating.target_tool(printer, command)
     if isinstance(tool, Reply):
         return tool
     if command.has("S") or command.has("R"):
@@ -342,7 +334,7 @@ def _expected_rise(heater, temperature: float) -> float:
 
 def wait_hotend(printer, command: Command, now: float):
     """M109 S|R [T]: set the tool's temperature, wait for its moves, then for the heater."""
-    tool = _tool(printer, command)
+    tool = heating.target_tool(printer, command)
     if isinstance(tool, Reply):
         return tool
     if not (command.has("S") or command.has("R")):
