@@ -53,6 +53,19 @@ count = 2
     assert plans[3].faults.to_printer == plans[4].faults.to_printer != plans[0].faults.to_printer
 
 
+def test_a_farm_file_gives_each_printer_the_identity_its_templates_say(tmp_path):
+    plans = load_farm(write(tmp_path, """
+[[printer]]
+count = 2
+firmware = "prusa"
+serial = "CZPX4720X{number:03d}X{letter}{d:05d}"
+machine_name = "Shelf B, MK3S #{number}"
+uuid = "00000000-0000-4000-8000-{number:012d}"
+"""))
+    assert [plan.serial for plan in plans] == ["CZPX4720X{number:03d}X{letter}{d:05d}"] * 2
+    assert [plan.uuid for plan in plans] == ["00000000-0000-4000-8000-{number:012d}"] * 2
+
+
 @pytest.mark.parametrize("text, message", [
     ("", "no [[printer]] tables"),
     ("[[printer]]\ncolour = 1", "[[printer]] #1 colour: is not a key this table knows"),
@@ -66,6 +79,8 @@ count = 2
     ("[[printer]]\nprotocol = 'telepathy'", "[[printer]] #1 protocol: must be one of"),
     ("[[printer]]\n[[printer.fault]]\nkind = 'melt'", "[[printer.fault]] #1: kind: must be one of"),
     ("printer = [", "not valid TOML"),
+    ("[[printer]]\nserial = 'SN{bogus}'", "[[printer]] #1 serial: 'SN{bogus}' is not a template"),
+    ("[[printer]]\ncount = 2\nmachine_name = 'Same'", "machine_name: 2 printers would share it"),
 ])
 def test_a_bad_farm_file_names_the_printer_the_key_and_the_problem(tmp_path, text, message):
     with pytest.raises(ScenarioError) as refused:  # a FarmError, or the scenario's own

@@ -119,8 +119,19 @@ def test_firmware_list_names_every_shipped_profile():
     (["--quirk", "nope"], "no quirk 'nope'"),
     (["--quirk", "drop_ok_every=-2"], "must be at least 0"),
     (["--firmware", "repetier", "--protocol", "marlin"], "speaks repetier, not marlin"),
+    (["--farm", "farm.toml", "--firmware", "prusa"], "--firmware goes in the farm file"),
+    (["--farm", "farm.toml", "--quirk", "no_m112"], "--quirk goes in the farm file"),
 ])
 def test_wrong_firmware_flags_are_refused_with_a_message(args, words):
     done = subprocess.run([sys.executable, "-m", "fake_marlin.emulator.cli", *args],
                           capture_output=True, text=True, timeout=60)
     assert done.returncode == 2 and words in done.stderr and "Traceback" not in done.stderr
+
+
+def test_a_quirk_that_takes_text_takes_it_as_typed():
+    from fake_marlin.emulator.cli.printers import _quirk
+
+    assert _quirk("password=1234") == ("password", "1234")  # docs/cli.md's example
+    assert _quirk("password=0042") == ("password", "0042")
+    assert _quirk("drop_ok_every=40") == ("drop_ok_every", 40)
+    assert _quirk("no_m112") == ("no_m112", True)

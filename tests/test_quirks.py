@@ -111,6 +111,19 @@ async def test_m512_changes_the_password(autojump_clock):
             "Password too long", "Remember to save!", "ok"]
 
 
+async def test_a_reset_unlocks_and_forgets_a_password_not_saved(autojump_clock):
+    async with marlin(password="1234") as (terminal, running):
+        assert await terminal.command("M512 P1234 S42") == [
+            "Password is 42", "Remember to save!", "ok"]
+        assert await terminal.command("M510") == ["ok"]
+        again = Terminal(running.link.open_host())  # a reset: no PASSWORD_ON_STARTUP
+        await again.read_until(lambda line: line == "//action:prompt_end")
+        assert (await again.command("M105"))[0].startswith("ok T:")
+        assert await again.command("M510") == ["ok"]
+        assert await again.command("M511 P42") == ["Incorrect Password", "ok"]  # not saved
+        assert await again.command("M511 P1234") == ["ok"]
+
+
 async def test_without_a_password_m510_is_unknown(autojump_clock):
     async with marlin() as (terminal, _):
         assert await terminal.command("M510") == ['echo:Unknown command: "M510"', "ok"]

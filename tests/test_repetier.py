@@ -556,3 +556,15 @@ def test_a_restart_whose_start_line_is_lost_is_still_a_restart():
             say(sender, "Error:expected line 1 got 60\r\n\r\nResend:1\r\nok\r\n", 0.3 + attempt)
             sent(sender, 0.3 + attempt)
     assert sender.stats.rewinds == 0
+
+
+async def test_repetier_firmware_on_auto_reads_ascii_lines_as_its_own(autojump_clock):
+    """Repetier-Firmware's only protocol takes ASCII lines beside binary commands: a host's
+    first printable line is Repetier's to read, not noise to skip."""
+    from fake_marlin.testing import memory_printer
+    from tests.terminal import Terminal
+
+    async with memory_printer(firmware="repetier") as printer:
+        terminal = Terminal(printer.open())
+        lines = await terminal.command("N1 M105*38")
+        assert lines[0] == "start\r" and lines[-1] == "ok 1\r"  # greeted once the protocol is known

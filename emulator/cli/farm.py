@@ -185,7 +185,8 @@ def _entry(path: Path, where: str, entry: dict, first: int) -> list[PrinterPlan]
         if template is None:
             continue
         try:
-            make_identity(0, 1, **{name: identity.get(name) or "" for name in _IDENTITY_KEYS})
+            # This template alone, so that an error names its own key.
+            make_identity(0, 1, *(template if name == key else "" for name in _IDENTITY_KEYS))
         except (KeyError, ValueError, IndexError) as error:
             own.fail(key, f"{template!r} is not a template it can fill in: {error!r}")
         if count > 1 and "{" not in template:

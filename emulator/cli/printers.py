@@ -24,7 +24,7 @@ from fake_marlin.emulator.cli.links import (
 from fake_marlin.emulator.link.pty import PtyLink
 from fake_marlin.emulator.link.tcp import TcpLink
 from fake_marlin.emulator.firmware import load_profile, shipped
-from fake_marlin.emulator.firmware.quirks import NAMES as QUIRK_NAMES
+from fake_marlin.emulator.firmware.quirks import KINDS as QUIRK_KINDS, NAMES as QUIRK_NAMES
 from fake_marlin.emulator.firmware.quirks import read_quirks
 from fake_marlin.emulator.printer.eeprom import EepromFileError
 from fake_marlin.emulator.printer.model import Printer
@@ -108,6 +108,8 @@ def _quirk(text: str) -> tuple[str, object]:
         raise argparse.ArgumentTypeError(f"no quirk {name!r}: one of {', '.join(QUIRK_NAMES)}")
     if not equals:
         return name, True
+    if QUIRK_KINDS.get(name) is str:
+        return name, value  # as typed: `password=1234` is the text 1234
     try:
         return name, tomllib.loads(f"value = {value}")["value"]  # 1, 2.5, true, "text"
     except tomllib.TOMLDecodeError:
@@ -269,6 +271,7 @@ def _plans(parser: argparse.ArgumentParser, args: argparse.Namespace) -> list[Pr
             ("--tcp", args.tcp), ("--rfc2217", args.rfc2217), ("--fault", args.fault),
             ("--eeprom-file", args.eeprom_file),
             ("--fault-table", args.fault_table),
+            ("--firmware", args.firmware != "marlin"), ("--quirk", args.quirk),
         ) if value]
         if given:
             parser.error(f"argument --farm: {given[0]} goes in the farm file's [[printer]] tables")

@@ -42,7 +42,8 @@ class Quirks:
 
 
 NAMES = tuple(field.name for field in dataclasses.fields(Quirks))
-_KINDS: dict[str, type | tuple[type, ...]] = {
+# What a quirk that is more than a switch takes (the others are true or false).
+KINDS: dict[str, type | tuple[type, ...]] = {
     "drop_ok_every": int, "busy_interval": (int, float), "password": str,
 }
 
@@ -51,7 +52,7 @@ def read_quirks(table: TableReader, base: Quirks) -> Quirks:
     """`base` with what a `[quirks]` table sets; each key checked, unknown keys refused."""
     changes: dict[str, object] = {}
     for name in NAMES:
-        kind = _KINDS.get(name, bool)
+        kind = KINDS.get(name, bool)
         minimum = 0 if name in ("drop_ok_every", "busy_interval") else None
         value = table.get(name, kind, None, minimum=minimum)
         if value is not None:

@@ -99,7 +99,7 @@ def stop_for_user(printer, command: Command, now: float):
     """M0/M1 [S<seconds>|P<ms>] [message]: wait for the user, or for the time given."""
     if not printer.config.capability("EMERGENCY_PARSER"):
         # HAS_RESUME_CONTINUE: without a display or the emergency parser there is no M0.
-        return reply(state("unknown_command", command=command.text))
+        return reply(state("unknown_command", command=command.text, name=command.code))
     text = _message(command)
     timeout = command.value("S", 0.0) + command.value("P", 0.0) / 1000.0
     drained = printer.planner.drained_at(now)
@@ -132,7 +132,7 @@ def _message(command: Command) -> str:
 def filament_change(printer, command: Command, now: float):
     """M600, as pause_print(), wait_for_confirmation() and resume_print() run it headless."""
     if not printer.config.capability("EMERGENCY_PARSER"):
-        return reply(state("unknown_command", command=command.text))
+        return reply(state("unknown_command", command=command.text, name=command.code))
     host = printer.host_prompt
     drained = printer.planner.drained_at(now)
     if drained > now:

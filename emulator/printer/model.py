@@ -180,11 +180,12 @@ class Printer:
         self._planner.clear()
         self._motion = MotionState(feedrate=self.config.default_feedrate)
         self.reset_settings()
+        self.password = self.config.password  # as built, unless M500 stored another
         if self.config.capability("EEPROM"):
             eeprom.apply_stored(self)  # settings.first_load(): what M500 stored, if anything
         self.host_prompt = host_actions.HostPrompt()
-        if self.config.locked_at_boot and self.config.password_feature:
-            self.locked = True  # PASSWORD_ON_STARTUP
+        # A board boots unlocked, but with PASSWORD_ON_STARTUP.
+        self.locked = self.config.locked_at_boot and self.config.password_feature
         self.active_tool = 0
         self.fans = [0] * max(1, self.config.extruders)
         self.auto_reports = AutoReports()

@@ -76,6 +76,7 @@ class PrinterServer:
         self._to_printer = Pipe(self._feed_session, config.conditions, config.faults.seed)
         self._to_host = Pipe(self._deliver, config.conditions, config.faults.seed + 1)
         self._restarts_in, self._restarts = trio.open_memory_channel[str](16)
+        self._restart_pending = False  # a reset asked for that has not begun
         self._nursery: trio.Nursery | None = None
         self._session: Session | DetectingSession | None = None
         self._session_scope = trio.CancelScope()
@@ -113,7 +114,15 @@ class PrinterServer:
             async for reason in self._restarts:
                 await self._restart(reason)
 
+    def _request_restart(self, reason: str) -> None:
+        """Reset the board soon (a session's FIRMWARE_RESTART, a reboot fault): one at a time,
+        since a reset already coming ends whatever would ask for another."""
+        if not self._restart_pending:
+            self._restart_pending = True
+            self._restarts_in.send_nowait(reason)
+
     async def _restart(self, reason: str) -> None:
+        self._restart_pending = False
         self._session_scope.cancel()
         await self._tasks.start(self._boot, reason)
 
@@ -192,7 +201,7 @@ class PrinterServer:
         if protocol == "marlin":
             return MarlinSession(
                 self.printer, self.journal, self._send, self.config.advanced_ok, reason,
-                self._before_command, firmware, self._restarts_in.send_nowait,
+                self._before_command, firmware, self._request_restart,
             )
         if protocol == "ultimaker":
             return UltimakerSession(
@@ -285,7 +294,7 @@ class PrinterServer:
             self.trace.fault(rule.kind.value, None)
         session = self._active_session()
         if rule.kind is FaultKind.REBOOT:
-            self._restarts_in.send_nowait(" Watchdog Reset")
+            self._request_restart(" Watchdog Reset")
         elif rule.kind is FaultKind.QUEUE_FULL:
             if session is not None:
                 session.block_queue(rule.seconds, self._tasks)
@@ -316,6 +325,8 @@ class PrinterServer:
             printer.password = quirks.password
         if quirks.locked and printer.config.password_feature:
             printer.locked = True
+        elif not printer.config.password_feature:
+            printer.locked = False  # no M511 left to unlock it with
         session = self._active_session()
         changed = getattr(session, "quirks_changed", None)
         if changed is not None:

@@ -60,6 +60,8 @@ def starts_with_repetier_command(data: bytes) -> bool | None:
     return True
 
 
+LINE_SPEAKERS = (Detected.MARLIN, Detected.REPETIER)  # in this order, where a firmware has both
+
 CONFIRMED_BY = {
     Detected.REPETIER: starts_with_repetier_command,
     Detected.COMMSTACK: starts_with_header,
@@ -80,6 +82,9 @@ class DetectingSession:
         self._bootloader = bootloader
         # The protocols this firmware speaks: bytes of any other are noise to it.
         self._protocols = protocols
+        # Who reads a printable line: Marlin's protocol, or (Repetier-Firmware, which has no
+        # other) Repetier's, whose machine takes ASCII lines beside its binary commands.
+        self._lines = next((speaker for speaker in LINE_SPEAKERS if speaker in protocols), None)
         self._session: Session | None = None
         self._held = b""  # the start of what may be a Repetier command or a CommStack frame
         self._fed = trio.Event()
@@ -102,9 +107,12 @@ class DetectingSession:
             index = 0
             while index < len(data):
                 protocol = classify(data[index], self._bootloader)
-                if protocol not in self._protocols and protocol is not Detected.STK500:
+                line = protocol is Detected.MARLIN
+                if line:
+                    protocol = self._lines
+                elif protocol not in self._protocols and protocol is not Detected.STK500:
                     protocol = None
-                if protocol in CONFIRMED_BY:
+                if protocol in CONFIRMED_BY and not line:
                     # Control bytes and high bytes are common in noise: only a checksum that
                     # checks out (a Repetier command's, a CommStack header's) decides.
                     confirmed = CONFIRMED_BY[protocol](data[index:])

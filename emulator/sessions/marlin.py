@@ -39,7 +39,8 @@ class MarlinSession:
         restart: Callable[[str], None] = lambda reason: None,
     ) -> None:
         self.printer = printer
-        self._restart = restart  # the server's: reset the board now, for this reason
+        self._restart_board = restart  # the server's: reset the board now, for this reason
+        self._resetting = False  # a reset is asked for: this boot reads nothing more
         self.journal = journal
         self._send = send
         self.reset_reason = reset_reason
@@ -88,6 +89,8 @@ class MarlinSession:
         hold_queue_full(self.protocol, seconds, nursery, resume=lambda: self.feed(b""))
 
     def feed(self, data: bytes) -> None:
+        if self._resetting:
+            return  # the board is going down: what comes now is read by the next boot, or lost
         if self.printer.halted:
             halt = self.firmware.profile.halt
             if halt.answers_all and (self._pending_answers or self._owes_answers()):
@@ -179,7 +182,7 @@ class MarlinSession:
         """A halted firmware that still reads (Klipper, Smoothieware): each command gets its
         refusal and `ok`, but for those its profile says it still runs, or that end the halt."""
         self.protocol.receive_data(data)
-        while (event := self.protocol.next_event()) is not None:
+        while not self._resetting and (event := self.protocol.next_event()) is not None:
             if isinstance(event, RealtimeCommand):
                 self._realtime(event)
             elif isinstance(event, CommandReceived):
@@ -191,6 +194,13 @@ class MarlinSession:
                     return
         self._send(self.protocol.data_to_send())
 
+    def _reset(self, reason: str) -> None:
+        """Ask the server to reset the board, once: the lines behind a FIRMWARE_RESTART in the
+        same read get no `ok` from a boot that is ending."""
+        if not self._resetting:
+            self._resetting = True
+            self._restart_board(reason)
+
     def _answer_halted(self, received: CommandReceived) -> None:
         halt = self.firmware.profile.halt
         command = parse(received.text)
@@ -198,7 +208,7 @@ class MarlinSession:
             self.journal.record(received.text)
             self._send_done(PLAIN_OK)
             self.announce((state("restarting"),))
-            self._restart(command.code)
+            self._reset(command.code)
         elif command.code in halt.clear:
             self.printer.clear_halt()
             self._wake()
@@ -230,7 +240,7 @@ class MarlinSession:
             changed = self._halt_changed = trio.Event()
             if self.printer.halted:
                 await trio.sleep(delay)
-                self._restart(" Watchdog Reset")
+                self._reset(" Watchdog Reset")
                 return
             await changed.wait()
 
@@ -381,7 +391,7 @@ class MarlinSession:
             return
         if reply.effect == "reset":  # RepRapFirmware's M999: the board resets, no `ok`
             self.announce(reply.lines)
-            self._restart(command.code)
+            self._reset(command.code)
             return
         self._protocol_effects(command)
         self._say_done(received, command, reply)
@@ -392,7 +402,7 @@ class MarlinSession:
             return
         if reply.effect == "restart":  # FIRMWARE_RESTART, RESTART: its `ok` is out
             self.announce((state("restarting"),))
-            self._restart(command.code)
+            self._reset(command.code)
             return
         self.protocol.saving_to_sd = self.printer.sd.saving is not None
         if self._report_settings() != self._reports:
