@@ -100,7 +100,7 @@ def test_without_a_command_the_parser_reads_the_printer_options():
 @pytest.mark.parametrize("argv, message", [
     (["--speed", "0"], "argument --speed: must be a positive number, got '0'"),
     (["--protocol", "nope"], "argument --protocol: invalid choice: 'nope' (choose from 'auto', "
-     "'marlin', 'ultimaker', 'repetier', 'commstack')"),
+     "'marlin', 'ultimaker', 'repetier', 'commstack', 'g2core')"),
     (["--extruders", "x"], "argument --extruders: must be a whole number from 1 to 8, got 'x'"),
     (["--printers", "2", "--link", "/tmp/printer"], "argument --link: with --printers, put {n} "
      "in it (the printer's number, from 1), e.g. --link /tmp/printer-{n}"),

@@ -10,7 +10,7 @@ from fake_marlin.emulator.firmware import Firmware, ProfileError, load_profile, 
 from fake_marlin.emulator.firmware.identity import make_identity
 from fake_marlin.emulator.printer.statements import state
 
-SHIPPED = ("klipper", "marlin", "marlin-1.1", "prusa", "reprapfirmware", "repetier",
+SHIPPED = ("g2core", "klipper", "marlin", "marlin-1.1", "prusa", "reprapfirmware", "repetier",
            "smoothieware", "ultimaker2")
 
 

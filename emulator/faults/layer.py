@@ -74,6 +74,7 @@ FRAMERS: dict[str | None, tuple[Framer, Framer]] = {
     "repetier": (repetier.TO_PRINTER_UNITS, repetier.TO_HOST_UNITS),
     "commstack": (commstack.TO_PRINTER_UNITS, commstack.TO_HOST_UNITS),
     "stk500": (stk500.TO_PRINTER_UNITS, stk500.TO_HOST_UNITS),
+    "g2core": (LINES, LINES),  # JSON and G-code lines both ways (a single character rides with its line)
 }
 
 

@@ -25,7 +25,7 @@ from fake_marlin.emulator.printer.statements import CATALOG, SPECIAL
 from fake_marlin.emulator.protocols.marlin import LineRules
 from fake_marlin.emulator.tables import TableError, TableReader
 
-PROTOCOL_NAMES = ("marlin", "ultimaker", "repetier", "commstack")
+PROTOCOL_NAMES = ("marlin", "ultimaker", "repetier", "commstack", "g2core")
 COMMAND_SETS = ("marlin", "prusa", "klipper", "reprapfirmware", "smoothieware")
 _SHIPPED = resources.files("fake_marlin.emulator.firmware") / "profiles"
 _MAX_DEPTH = 8  # profiles extending profiles

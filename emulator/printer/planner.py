@@ -10,6 +10,7 @@ from typing import NamedTuple
 
 BLOCK_BUFFER_SIZE = 16
 MAX_MOVES = BLOCK_BUFFER_SIZE - 1  # a ring buffer keeps one slot free
+HOLD_SPAN = 1e9  # s: a feedhold moves the held blocks this far on, until it is released
 
 
 class Block(NamedTuple):  # a tuple: a planner makes one per move (a frozen dataclass costs 2.5x)
@@ -111,6 +112,21 @@ class Planner:
             Block(max(block.start, now) + seconds, block.end + seconds, block.origin, block.target)
             for block in self._blocks
         )
+
+    def hold(self, now: float) -> None:
+        """A feedhold: the steppers stop where they are now, until release(). (The move in
+        progress is cut here, its rest runs after the hold.)"""
+        self._retire(now)
+        blocks = self._blocks
+        if blocks and blocks[0].start < now:
+            first = blocks[0]
+            here = self.stepper_position(now, first.target)
+            blocks[0] = Block(now, first.end, here, first.target)
+        self.stall(now, HOLD_SPAN)
+
+    def release(self, now: float, held_since: float) -> None:
+        """The end of a hold begun at `held_since`: the moves held run on from now."""
+        self.stall(now, -(HOLD_SPAN - (now - held_since)))
 
     def clear(self) -> None:
         self._blocks.clear()

@@ -58,6 +58,7 @@ class CommandReceived:
     # Its line number (Marlin, Repetier: None for a line without one), or its packet's
     # sequence number (Ultimaker).
     number: int | None
+    size: int = 0  # the bytes it came in, where the answer says them (g2core's footer)
 
 
 # Events in, shared.

@@ -19,6 +19,7 @@ from fake_marlin.emulator.protocols.avr_memory import BoardMemory
 from fake_marlin.emulator.sessions.base import Session
 from fake_marlin.emulator.sessions.commstack import CommStackSession
 from fake_marlin.emulator.sessions.detect import Detected, DetectingSession
+from fake_marlin.emulator.sessions.g2core import G2coreSession
 from fake_marlin.emulator.sessions.marlin import MarlinSession
 from fake_marlin.emulator.sessions.repetier import RepetierSession
 from fake_marlin.emulator.sessions.stk500 import Stk500Session
@@ -26,7 +27,7 @@ from fake_marlin.emulator.sessions.ultimaker import UltimakerSession
 from fake_marlin.emulator.trace.tap import PrinterSampler, TracedJournal, watch_rejects
 from fake_marlin.emulator.trace.writer import Trace
 
-PROTOCOLS = ("auto", "marlin", "ultimaker", "repetier", "commstack")
+PROTOCOLS = ("auto", "marlin", "ultimaker", "repetier", "commstack", "g2core")
 
 
 @dataclass(frozen=True)
@@ -174,9 +175,10 @@ class PrinterServer:
             return self._detecting_session(reason, profile.bootloader)
         return self._protocol_session(protocol, reason)
 
-    def _detecting_session(self, reason: str, bootloader: bool = True) -> DetectingSession:
+    def _detecting_session(self, reason: str, bootloader: bool = True,
+                           only: tuple[str, ...] | None = None) -> DetectingSession:
         self.faults.set_protocol(None)  # until detection decides, no framer of its own
-        protocols = frozenset(Detected(name) for name in self.firmware.profile.protocols)
+        protocols = frozenset(Detected(name) for name in only or self.firmware.profile.protocols)
         return DetectingSession(
             lambda detected: self._protocol_session(detected.value, reason), bootloader=bootloader,
             protocols=protocols,
@@ -192,17 +194,16 @@ class PrinterServer:
         # Unit faults act on this protocol's units from now on, both ways.
         self.faults.set_protocol(protocol)
         if protocol == "stk500":
-            # LEAVE starts the firmware, whose protocol the bytes after it choose.
+            # LEAVE starts the firmware, whose protocol the bytes after it choose (on a g2core
+            # board, Marlin's: a host that probed the bootloader is a Marlin host).
+            only = ("marlin",) if "g2core" in self.firmware.profile.protocols else None
             return Stk500Session(
-                self._send, lambda: self._detecting_session(reason, bootloader=False),
+                self._send, lambda: self._detecting_session(reason, bootloader=False, only=only),
                 self.memory, self._flash_changed,
             )
         firmware = self.firmware.speaking(protocol)
         if protocol == "marlin":
-            return MarlinSession(
-                self.printer, self.journal, self._send, self.config.advanced_ok, reason,
-                self._before_command, firmware, self._request_restart,
-            )
+            return self._marlin_session(reason, firmware)
         if protocol == "ultimaker":
             return UltimakerSession(
                 self.printer, self.journal, self._send, self.config.ultimaker_queue_size,
@@ -212,10 +213,22 @@ class PrinterServer:
             return RepetierSession(
                 self.printer, self.journal, self._send, reason, self._before_command, firmware
             )
+        if protocol == "g2core":
+            return G2coreSession(
+                self.printer, self.journal, self._send, self._before_command, firmware,
+                self._request_restart,
+                marlin=lambda: self._marlin_session(reason, self.firmware.speaking("marlin")),
+            )
         if protocol == "commstack":
             return CommStackSession(self.printer, self.journal, self._send, self._before_command,
                                     firmware)
         raise ValueError(f"unknown protocol {protocol!r}")
+
+    def _marlin_session(self, reason: str, firmware: Firmware) -> MarlinSession:
+        return MarlinSession(
+            self.printer, self.journal, self._send, self.config.advanced_ok, reason,
+            self._before_command, firmware, self._request_restart,
+        )
 
     def _send(self, data: bytes) -> None:
         if not data:

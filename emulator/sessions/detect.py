@@ -10,7 +10,7 @@ from fake_marlin.emulator.protocols.repetier import MAX_CMD_SIZE
 from fake_marlin.emulator.protocols.stk500 import MESSAGE_START
 from fake_marlin.emulator.sessions.base import Session
 from fake_marlin.emulator.sessions.stk500 import Stk500Session
-from fake_marlin.wire import repetier
+from fake_marlin.wire import g2core, repetier
 from fake_marlin.wire.commstack import starts_with_header
 
 PRINTABLE = frozenset(range(0x20, 0x7F)) | {0x0A, 0x0D}
@@ -26,6 +26,7 @@ class Detected(Enum):
     STK500 = "stk500"  # a host talking to the Arduino bootloader that runs first after a reset
     REPETIER = "repetier"
     COMMSTACK = "commstack"
+    G2CORE = "g2core"  # its JSON requests, its single characters and G-code lines
 
 
 def classify(byte: int, bootloader: bool = True) -> Detected | None:
@@ -60,7 +61,13 @@ def starts_with_repetier_command(data: bytes) -> bool | None:
     return True
 
 
-LINE_SPEAKERS = (Detected.MARLIN, Detected.REPETIER)  # in this order, where a firmware has both
+# In this order, where a firmware has more than one (a g2core board reads a line as g2core,
+# which hands it to Marlin's protocol if it is a Marlin host's).
+LINE_SPEAKERS = (Detected.G2CORE, Detected.MARLIN, Detected.REPETIER)
+
+# What a board tells apart unless its profile says otherwise: all but g2core's, whose lines
+# would take Marlin's.
+MARLIN_BOARD = frozenset(Detected) - {Detected.G2CORE}
 
 CONFIRMED_BY = {
     Detected.REPETIER: starts_with_repetier_command,
@@ -77,7 +84,7 @@ class DetectingSession:
     """
 
     def __init__(self, make_session: Callable[[Detected], Session], bootloader: bool = True,
-                 protocols: frozenset[Detected] = frozenset(Detected)) -> None:
+                 protocols: frozenset[Detected] = MARLIN_BOARD) -> None:
         self._make_session = make_session
         self._bootloader = bootloader
         # The protocols this firmware speaks: bytes of any other are noise to it.
@@ -107,6 +114,8 @@ class DetectingSession:
             index = 0
             while index < len(data):
                 protocol = classify(data[index], self._bootloader)
+                if self._lines is Detected.G2CORE and data[index] in g2core.SINGLE_CHARACTERS:
+                    protocol = Detected.MARLIN  # ^X, ^D, ENQ: a g2core host's
                 line = protocol is Detected.MARLIN
                 if line:
                     protocol = self._lines

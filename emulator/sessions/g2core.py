@@ -1,0 +1,362 @@
+"""One boot of a g2core board speaking its JSON protocol (docs/protocols.md section 8).
+
+The board answers every line once: a control (`{...}`) at once, ahead of queued G-code; a data
+line as it is read, which happens only while the planner has PLANNER_HEADROOM buffers free, no
+feedhold blocks it and no command of the line before is still waiting. It says the status
+report's changed fields every `si` ms while they change (sv 1; all of them with sv 2), and the
+free planner buffers (`qr`) whenever they change, at `qv` 1 or 2.
+"""
+
+import math
+from collections.abc import Callable, Iterable
+
+import trio
+
+from fake_marlin.emulator.firmware import Firmware
+from fake_marlin.emulator.journal.writer import Journal
+from fake_marlin.emulator.printer import g2core as board
+from fake_marlin.emulator.printer.g2core import BoardState, BoardView, Build, MachineState
+from fake_marlin.emulator.printer.gcode import parse
+from fake_marlin.emulator.printer.model import Printer, Reply
+from fake_marlin.emulator.printer.statements import Statement
+from fake_marlin.emulator.protocols.base import CommandReceived
+from fake_marlin.emulator.protocols.g2core import (
+    BadLine,
+    BadRequest,
+    G2coreProtocol,
+    JsonRequest,
+    Report,
+    Response,
+    SingleCharacter,
+)
+from fake_marlin.emulator.sessions.driver import CommandRun, finish
+from fake_marlin.wire import g2core
+from fake_marlin.wire.g2core import Number, OutValue
+
+# The Marlin codes that only a Marlin host sends (seed 001's canaries): g2core's Marlin
+# compatibility (gcode_parser.cpp:1127-1200) switches the connection to Marlin's protocol.
+CANARIES = frozenset({"M105", "M108", "M110", "M114", "M115"})
+PROGRAM_END = frozenset({"M2", "M30"})
+
+
+class G2coreSession:
+    def __init__(
+        self,
+        printer: Printer,
+        journal: Journal,
+        send: Callable[[bytes], None],
+        before_command: Callable[[str], None] = lambda text: None,
+        firmware: Firmware | None = None,
+        restart: Callable[[str], None] = lambda reason: None,
+        build: Build | None = None,
+        marlin: Callable[[], object] | None = None,
+    ) -> None:
+        self.printer = printer
+        self.journal = journal
+        self._send = send
+        self._before_command = before_command
+        self.firmware = firmware or Firmware.make("g2core")
+        self._restart = restart
+        self.build = build or Build()
+        self.protocol = G2coreProtocol()
+        self.state = BoardState()
+        self._waiting: tuple[CommandRun, float] | None = None  # a command that waits for time
+        self._work = trio.Event()
+        self._changed = trio.Event()  # the planner or the state changed: reports may be due
+        self._resetting = False
+        self._last_room: int | None = None
+        self._make_marlin = marlin
+        self._marlin: object | None = None  # the Marlin session a canary handed the line to
+        self._marlin_started = trio.Event()
+        self._sr_requested = False  # report.cpp: a line read, a cycle's end, motion
+
+    # -- what a session is ------------------------------------------------------------------
+    @property
+    def active(self):
+        return self._marlin or self
+
+    def boot(self) -> None:
+        view = self._view()
+        body: dict[str, OutValue] = {name: board.READ[name](view)
+                                     for name in ("fv", "fb", "fbs", "fbc", "hp", "hv", "id")}
+        body["msg"] = "SYSTEM READY"
+        self._respond(body, g2core.OK, 1)
+
+    def feed(self, data: bytes) -> None:
+        if self._marlin is not None:
+            self._marlin.feed(data)  # type: ignore[attr-defined]
+            return
+        if self._resetting:
+            return
+        self.protocol.receive_data(data)
+        self._read()
+
+    async def run(self) -> None:
+        async with trio.open_nursery() as nursery:
+            nursery.start_soon(self._execute)
+            nursery.start_soon(self._report)
+            await self._marlin_started.wait()
+            nursery.cancel_scope.cancel()  # Marlin's protocol from now on: its session runs
+        await self._marlin.run()  # type: ignore[union-attr]
+
+    def announce(self, statements: Iterable[Statement]) -> None:
+        """What the firmware says on its own: the banner to a host that opens the port (10 ms
+        after a USB connect, controller.cpp:340-366), an error as an exception report."""
+        statements = tuple(statements)
+        if any(statement.key == "connected" for statement in statements):
+            self.boot()
+            statements = tuple(statement for statement in statements
+                               if statement.key != "connected")
+        for line in self.firmware.words.lines(statements):
+            if line.startswith("Error:") or line.startswith("!!"):
+                self._say(Report("er", {"fb": Number(self.build.fb, 2), "st": 200,
+                                        "msg": f"Generic error - {line}"}))
+
+    def block_queue(self, seconds: float, nursery: trio.Nursery) -> None:
+        async def hold() -> None:
+            self._blocked = True
+            await trio.sleep(seconds)
+            self._blocked = False
+            self._read()
+        nursery.start_soon(hold)
+
+    _blocked = False
+    _held_since = 0.0
+
+    # -- reading ----------------------------------------------------------------------------
+    def _can_read_gcode(self) -> bool:
+        return (self._waiting is None and not self._blocked and not self.printer.halted
+                and self.state.stat is not MachineState.HOLD
+                and self.printer.room(trio.current_time()) >= g2core.PLANNER_HEADROOM)
+
+    def _read(self) -> None:
+        protocol = self.protocol
+        protocol.reading_gcode = self._can_read_gcode()
+        while not self._resetting and self._marlin is None and (
+                event := protocol.next_event()) is not None:
+            if isinstance(event, JsonRequest):
+                self._json(event)
+            elif isinstance(event, SingleCharacter):
+                self._single(event.byte)
+            elif isinstance(event, BadRequest):
+                body: dict[str, OutValue] = {}
+                if event.status == g2core.JSON_SYNTAX_ERROR and self.state.settings.jv >= 2:
+                    body["err"] = event.text
+                self._respond(body, event.status, event.size)
+            elif isinstance(event, BadLine):
+                self._respond({}, event.status, event.size)
+            elif isinstance(event, CommandReceived):
+                self._gcode(event)
+            protocol.reading_gcode = self._can_read_gcode()
+            self._sr_requested = True  # every line read asks for a (timed) report
+        self._changed.set()
+
+    def _json(self, request: JsonRequest) -> None:
+        body, status = board.answer(self._view(), request.pairs)
+        if self.state.settings.jv < 2:
+            body.pop("msg", None)
+        self._respond(body, status, request.size)
+
+    def _single(self, byte: int) -> None:
+        state = self.state
+        if byte == g2core.ENQ:
+            self._send(b'{"ack":true}\n')
+        elif byte == g2core.RESET:
+            self._resetting = True
+            self._restart(" ^X")
+        elif byte == g2core.FEEDHOLD:
+            if state.stat in (MachineState.RUN, MachineState.HOMING):
+                state.stat = MachineState.HOLD
+                self._sr_requested = True
+                self._held_since = trio.current_time()
+                self.printer.planner.hold(self._held_since)
+        elif byte == g2core.CYCLE_START:
+            if state.stat is MachineState.HOLD:
+                self.printer.planner.release(trio.current_time(), self._held_since)
+                state.stat = MachineState.RUN
+                self._work.set()
+        elif byte == g2core.QUEUE_FLUSH:
+            if state.stat is MachineState.HOLD:  # a control only while a hold exists
+                self.protocol.discard_data()
+                self.printer.planner.clear()
+                state.stat = MachineState.PROGRAM_STOP
+        elif byte == g2core.KILL_JOB:
+            if state.stat not in (MachineState.ALARM, MachineState.SHUTDOWN, MachineState.PANIC):
+                self.protocol.discard_data()
+                self.printer.planner.clear()
+                for heater in (*self.printer.hotends, self.printer.bed):
+                    heater.set_target(trio.current_time(), 0.0)
+                state.stat = MachineState.PROGRAM_END
+                self._say(Report("er", {"fb": Number(self.build.fb, 2), "st": 207,
+                                        "msg": "Kill job - Job killed by ^d"}))
+        self._changed.set()
+
+    def _gcode(self, received: CommandReceived) -> None:
+        text = g2core_to_model(received.text)
+        code = parse(text).code if text else ""
+        if code in CANARIES and self._make_marlin is not None:
+            self._hand_to_marlin(received)
+            return
+        if received.number is not None:
+            self.state.line = received.number
+        body: dict[str, OutValue] = {}
+        jv = self.state.settings.jv
+        if jv >= 5:
+            body["gc"] = received.text
+        if jv >= 4 and received.number:
+            body["n"] = received.number
+        if not text:  # a comment, a blank line
+            self._respond(body, g2core.OK, received.size)
+            return
+        if code[:1] in ("G", "M") and code not in self.printer.handlers:
+            # gcode_parser.cpp:677-846: refused as it is parsed, so it never runs
+            self._respond(body, g2core.MCODE_UNSUPPORTED if code[0] == "M"
+                          else g2core.GCODE_COMMAND_UNSUPPORTED, received.size)
+            return
+        self._before_command(received.text)
+        if self.printer.halted:
+            return
+        run = CommandRun(self.printer, text, self.journal, lambda statement: None)
+        until = run.advance()
+        status = _status(run.reply, code)
+        self._respond(body, status, received.size)
+        if code in PROGRAM_END and status == g2core.OK:
+            self.state.stat = MachineState.PROGRAM_END
+        elif self.printer.planner.moves(trio.current_time()):
+            self.state.stat = MachineState.RUN
+        if until is not None:
+            self._waiting = (run, until)
+            self._work.set()
+
+    def _hand_to_marlin(self, received: CommandReceived) -> None:
+        """A Marlin host showed itself: Marlin's protocol from this line until the port closes."""
+        assert self._make_marlin is not None
+        marlin = self._marlin = self._make_marlin()
+        marlin.boot()  # type: ignore[attr-defined]
+        self._marlin_started.set()
+        line = received.text if received.number is None else f"N{received.number} {received.text}"
+        marlin.feed(line.encode() + b"\n")  # type: ignore[attr-defined]
+
+
+    # -- its own time -----------------------------------------------------------------------
+    async def _execute(self) -> None:
+        while True:
+            if self._waiting is not None:
+                run, until = self._waiting
+                await finish(run, until)
+                self._waiting = None
+                self._read()
+            work = self._work = trio.Event()
+            await work.wait()
+
+    async def _report(self) -> None:
+        """Status and queue reports, as report.cpp times them."""
+        while self._marlin is None:
+            now = trio.current_time()
+            view = self._view()
+            moving = bool(self.printer.planner.moves(now))
+            if self._waiting is None and not moving and (
+                    self.state.stat in (MachineState.RUN, MachineState.HOMING)):
+                self.state.stat = MachineState.PROGRAM_STOP  # the cycle's end
+                self._sr_requested = True
+            self._queue_report(view)
+            if self._sr_requested or (moving and self.state.stat is not MachineState.HOLD):
+                self._sr_requested = False
+                self._status_report(view)
+            self._read()  # room may have opened for the next line
+            changed = self._changed = trio.Event()
+            wake = self.printer.next_room_change(now)
+            interval = self.state.settings.si / 1000
+            with trio.move_on_at(min(wake if wake is not None else math.inf, now + interval)):
+                await changed.wait()
+                await trio.sleep(0)
+
+    def _queue_report(self, view: BoardView) -> None:
+        """`{"qr":N}` (qv 1) or `{"qr":N,"qi":in,"qo":out}` (qv 2) when the free buffers change."""
+        last, self._last_room = self._last_room, view.room
+        if last is None or last == view.room or not self.state.settings.jv:
+            return
+        qv = self.state.settings.qv
+        if qv == 1:
+            self._say(Report("qr", view.room))
+        elif qv == 2:
+            self._send(g2core.dumps({"qr": view.room, "qi": max(0, last - view.room),
+                                     "qo": max(0, view.room - last)}).encode() + b"\n")
+
+    def _status_report(self, view: BoardView) -> None:
+        sv = self.state.settings.sv
+        if not sv:
+            return
+        fields = board.status_report(view) if sv == 2 else board.changed_fields(view)
+        if fields:
+            self.state.last_sr.update(board.status_report(view))
+            self._say(Report("sr", fields))
+
+    # -- saying -----------------------------------------------------------------------------
+    def _view(self) -> BoardView:
+        now = trio.current_time()
+        return BoardView(self.printer, self.state, self.build, now, self.printer.room(now))
+
+    def _respond(self, body: dict[str, OutValue], status: int, size: int) -> None:
+        jv = self.state.settings.jv
+        if jv == 0 or (jv == 6 and status == g2core.OK):
+            return
+        self._say(Response(body, status, size))
+
+    def _say(self, event: Response | Report) -> None:
+        self._send(self.protocol.send(event))
+
+
+def _status(reply: Reply, code: str) -> int:
+    """The footer status of a data line the model ran."""
+    for statement in reply.lines:
+        if statement.key == "unknown_command":
+            return g2core.MCODE_UNSUPPORTED if code.startswith("M") else (
+                g2core.GCODE_COMMAND_UNSUPPORTED)
+    return g2core.OK
+
+
+def g2core_to_model(text: str) -> str:
+    """A g2core-flavour line in the words of the printer model: G28.2 homes, G28.3 sets the
+    origin, A (the first extruder's axis) is E, M6 takes the tool already selected; comments
+    and the active `({...})` ones go (M100's JSON is not run)."""
+    line = text.split(";", 1)[0]
+    out: list[str] = []
+    depth = 0
+    for char in line:
+        if char == "(":
+            depth += 1
+        elif char == ")":
+            depth = max(0, depth - 1)
+        elif not depth:
+            out.append(char)
+    line = "".join(out).strip().upper()
+    if not line:
+        return ""
+    head = line.replace(" ", "")
+    if head.startswith("G28.2"):
+        return "G28" + _axis_words(head[5:], drop_values=True)
+    if head.startswith("G28.3"):
+        return "G92" + _axis_words(head[5:])
+    if head.startswith("M6") and not head[2:3].isdigit():
+        return "M400"  # the tool change is queued, and no more
+    if head.startswith(("M100", "M101")):
+        return "M400"
+    return line.replace("A", "E") if "E" not in line else line
+
+
+def _axis_words(words: str, drop_values: bool = False) -> str:
+    parts: list[str] = []
+    current = ""
+    for char in words:
+        if char.isalpha():
+            if current:
+                parts.append(current)
+            current = char
+        else:
+            current += char
+    if current:
+        parts.append(current)
+    if drop_values:
+        return "".join(f" {part[0]}" for part in parts)
+    return "".join(f" {part}" for part in parts)

@@ -1,0 +1,162 @@
+"""g2core's JSON protocol (wire/g2core.py, emulator/protocols/g2core.py, the session): vectors read
+from g2core's source (docs/protocols.md section 8), and a board in memory on trio's autojump clock."""
+
+import json
+
+import pytest
+import trio
+from hypothesis import given, strategies as st
+
+from fake_marlin.emulator.protocols.base import CommandReceived
+from fake_marlin.emulator.protocols.g2core import (
+    BadLine,
+    BadRequest,
+    G2coreProtocol,
+    JsonRequest,
+    SingleCharacter,
+)
+from fake_marlin.testing import memory_printer
+from fake_marlin.wire import g2core
+from fake_marlin.wire.g2core import NULL, Number, RelaxedJsonError
+
+
+@pytest.mark.parametrize("line, pairs", [
+    ("{ej:1}", {"ej": 1}),
+    ('{"SR":N}', {"sr": NULL}),  # lower-cased, n is null: a GET
+    ('{"qr":""}', {"qr": NULL}),  # "" too
+    ("{sr:{stat:t,line:t,posx:t}}", {"sr": {"stat": True, "line": True, "posx": True}}),
+    ("{ he1st : 200.5 }", {"he1st": 200.5}),
+    ("{xvm:f}", {"xvm": False}),
+    ('{gc:"G1 X10 (Keep This)"}', {"gc": "g1x10(Keep This)"}),  # normalized, but in comments
+])
+def test_relaxed_json_reads_as_g2cores_parser_does(line, pairs):
+    assert g2core.parse_request(line) == pairs
+
+
+@pytest.mark.parametrize("line, status", [
+    ("{toolong:1}", 107),  # a name of more than 6 characters
+    ("{a:.5}", 111),  # a number may not start with a point
+    ("{a:[1]}", 116),  # arrays are not taken
+    ("{a:1e999}", 102),
+    ("{a:1", 111),
+    ("{" + ",".join(f"a{i}:1" for i in range(40)) + "}", 112),
+    ("{a:'" + "x" * 600 + "'}", 107),
+])
+def test_requests_the_parser_refuses_say_its_status(line, status):
+    with pytest.raises(RelaxedJsonError) as refused:
+        g2core.parse_request(line)
+    assert refused.value.status == status
+
+
+@given(st.text(max_size=80))
+def test_any_request_text_parses_or_is_refused_with_a_status(text):
+    try:
+        g2core.parse_request("{" + text)
+    except RelaxedJsonError as refused:
+        assert refused.status in g2core.STATUS_MESSAGES
+
+
+def test_numbers_are_written_as_floattoa_writes_them():
+    assert [g2core.format_number(value, places) for value, places in [
+        (0.0, 3), (20.1, 3), (-10.0, 3), (101.03, 2), (0.99, 2), (1.23456, 5), (-0.0001, 3)]] == [
+        "0", "20.1", "-10", "101.03", "0.99", "1.23456", "0"]
+    body = {"fv": Number(0.99, 2), "fb": Number(101.03, 2), "fbs": "101.03",
+            "fbc": "settings_default.h", "hp": "g2v9", "hv": "k", "id": "0084-d639-18c6-7bd0",
+            "msg": "SYSTEM READY"}
+    assert g2core.response(body, 0, 1) == (
+        b'{"r":{"fv":0.99,"fb":101.03,"fbs":"101.03","fbc":"settings_default.h","hp":"g2v9",'
+        b'"hv":"k","id":"0084-d639-18c6-7bd0","msg":"SYSTEM READY"},"f":[1,0,1]}\n')
+
+
+def test_the_machine_reads_controls_ahead_of_queued_gcode_and_counts_each_lines_bytes():
+    protocol = G2coreProtocol()
+    protocol.reading_gcode = False  # the planner is full
+    protocol.receive_data(b'N12G1X5\nG1 X10\n{"qr":""}\n{"ej":1}\r\n!~\x05N1 G1*99\nG1 X1*5\n')
+    events = []
+    while (event := protocol.next_event()) is not None:
+        events.append(event)
+    # Sizes as g2core's footer says them (a capture of 100.17: {"qr":""} 11, {"ej":1} 10).
+    assert events == [JsonRequest({"qr": NULL}, 11), JsonRequest({"ej": 1}, 11),
+                      SingleCharacter(ord("!")), SingleCharacter(ord("~")), SingleCharacter(5)]
+    protocol.reading_gcode = True
+    while (event := protocol.next_event()) is not None:
+        events.append(event)
+    assert events[5:] == [CommandReceived("G1X5", 12, 8), CommandReceived("G1 X10", None, 7),
+                          BadLine(118, 9), BadLine(120, 8)]
+
+
+def test_a_line_the_parser_refuses_is_an_event_not_an_exception():
+    protocol = G2coreProtocol()
+    protocol.receive_data(b"{a:.5}\n")
+    assert protocol.next_event() == BadRequest(111, "{a:.5}", 8)
+
+
+class Board:
+    """A host's end of a g2core board's USB line: JSON lines back."""
+
+    def __init__(self, stream) -> None:
+        self.stream = stream
+        self.buffer = b""
+
+    async def line(self) -> dict:
+        while b"\n" not in self.buffer:
+            self.buffer += await self.stream.receive_some(4096)
+        line, self.buffer = self.buffer.split(b"\n", 1)
+        return json.loads(line)
+
+    async def ask(self, text: bytes) -> dict:
+        """Send a line; the board's response to it (reports before it are skipped)."""
+        await self.stream.send_all(text)
+        while "f" not in (reply := await self.line()):
+            pass
+        return reply
+
+
+async def test_a_board_answers_a_cncjs_style_start_and_runs_a_job_with_a_feedhold(autojump_clock):
+    async with memory_printer(firmware="g2core", protocol="g2core") as printer:
+        board = Board(printer.open())
+        banner = await board.line()
+        assert banner["r"]["msg"] == "SYSTEM READY" and banner["f"] == [1, 0, 1]
+        assert banner["r"]["fb"] == 101.03 and banner["r"]["hp"] == "g2v9"
+        assert await board.ask(b"{ej:1}\n") == {"r": {"ej": 1}, "f": [1, 0, 8]}
+        assert await board.ask(b"{jv:4}\n") == {"r": {"jv": 4}, "f": [1, 0, 8]}
+        assert await board.ask(b"{qv:1}\n") == {"r": {"qv": 1}, "f": [1, 0, 8]}
+        assert await board.ask(b"{spe:n}\n") == {"r": {"spe": None}, "f": [1, 100, 9]}
+        assert (await board.ask(b"{jv:9}\n"))["f"] == [1, 109, 8]
+        sr = await board.ask(b"{sr:{stat:t,line:t,posx:t}}\n")
+        assert sr == {"r": {"sr": {"stat": 1, "line": 0, "posx": 0}}, "f": [1, 0, 29]}
+        assert (await board.ask(b"{qr:n}\n"))["r"] == {"qr": 15}
+        assert await board.ask(b"N1G1X40F600\n") == {"r": {"n": 1}, "f": [1, 0, 12]}
+        report = await board.line()
+        while "sr" not in report:
+            report = await board.line()
+        assert report["sr"]["stat"] == 5 and report["sr"]["line"] == 1
+        await trio.sleep(1)  # under way
+        await board.stream.send_all(b"!")
+        while (report := await board.line()).get("sr", {}).get("stat") != 6:
+            pass
+        held = (await board.ask(b"{sr:n}\n"))["r"]["sr"]["posx"]
+        assert 0 < held < 40
+        assert (await board.ask(b"{sr:n}\n"))["r"]["sr"]["posx"] == held  # it stays there
+        await board.stream.send_all(b"~")
+        while (report := await board.line()).get("sr", {}).get("stat") != 3:
+            pass
+        assert report["sr"]["posx"] == 40
+        assert await board.ask(b"N2G1X5Q\n") == {"r": {"n": 2}, "f": [1, 0, 8]}
+        assert (await board.ask(b"M9999\n"))["f"][1] == 132  # an M code it lacks
+        assert printer.journal == ["G1X40F600", "G1X5Q"]
+
+
+async def test_a_marlin_host_on_the_same_port_is_answered_in_marlins_words(autojump_clock):
+    async with memory_printer(firmware="g2core") as printer:
+        stream = printer.open()
+        await stream.send_all(b"N0 M110 N0*125\n")
+        data = b""
+        while b"ok\n" not in data:
+            data += await stream.receive_some(4096)
+        banner, ok = data.split(b"\n")[:2]  # the banner, as at any USB connect; then Marlin's
+        assert b'"msg":"SYSTEM READY"' in banner and ok == b"ok"
+        await stream.send_all(b"M115\n")
+        while b"UUID:" not in data:
+            data += await stream.receive_some(4096)
+        assert b"FIRMWARE_NAME:Marlin g2core-101.03 SOURCE_CODE_URL:https://github.com/synthetos/g2" in data
