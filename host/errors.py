@@ -33,6 +33,15 @@ class PrinterLocked(RemoteError):
     """The printer refuses every command until it is unlocked (M511 P<password>)."""
 
 
+class CommandFailed(RemoteError):
+    """The printer refused a command or could not run it (g2core: a status other than OK in the
+    footer of its response): the job stops there. `status`: the printer's code, where it has one."""
+
+    def __init__(self, message: str, status: int | None = None) -> None:
+        super().__init__(message)
+        self.status = status
+
+
 class UsageError(HostError):
     """The caller asked for something that cannot be done."""
 

@@ -7,16 +7,17 @@ when it wants to be polled unasked (`next_deadline`). No I/O, no clock, no trio:
 (fake_marlin.host.shell) moves the bytes and the time. A core that streams commands is also a
 `StreamingCore`: the caller submits commands and takes back the tickets completed.
 
-One core per protocol: UltimakerCore, MarlinCore, RepetierCore (streaming) and CommStackCore.
+One core per protocol: UltimakerCore, MarlinCore, RepetierCore, G2coreCore (streaming) and
+CommStackCore.
 """
 
 from typing import Any, ClassVar, Protocol
 
-from fake_marlin.host.codecs import marlin, ultimaker
+from fake_marlin.host.codecs import g2core, marlin, ultimaker
 from fake_marlin.host.cores.queue import Ticket
 
 # A line the printer printed that is not a command's response data (Repetier's are Marlin's).
-PrinterLine = ultimaker.Line | marlin.Line
+PrinterLine = ultimaker.Line | marlin.Line | g2core.Line
 
 
 class Stats(Protocol):
