@@ -10,6 +10,7 @@ from fake_marlin.host.cores.base import PrinterLine, Stats
 from fake_marlin.host.cores.queue import Ticket
 from fake_marlin.host.errors import (
     CommandError,
+    CommandFailed,
     ConnectionLost,
     HostError,
     PortError,
@@ -38,6 +39,7 @@ __all__ = [
     "Client",
     "ClientOptions",
     "CommandError",
+    "CommandFailed",
     "ConnectionLost",
     "HostError",
     "LineCallback",

@@ -9,7 +9,7 @@ import time
 import trio
 
 from fake_marlin import __version__
-from fake_marlin.host.codecs import marlin, ultimaker
+from fake_marlin.host.codecs import g2core, marlin, ultimaker
 from fake_marlin.host.connect import DEFAULT_BAUDRATE, PROTOCOLS, load_job, open_printer
 from fake_marlin.host.errors import HostError, RemoteError
 from fake_marlin.host.shell import ClientOptions, sole_exception
@@ -38,7 +38,7 @@ def build_parser() -> argparse.ArgumentParser:
     common.add_argument("--baud", type=_positive(int), default=DEFAULT_BAUDRATE)
     common.add_argument(
         "--window", type=_positive(int), default=3,
-        help="Ultimaker packets in flight (default 3); Marlin always has one line in flight",
+        help="Ultimaker packets, g2core lines in flight (default 3); Marlin always has one line in flight",
     )
     common.add_argument(
         "--timeout", type=_positive(float), default=2.0,
@@ -54,7 +54,8 @@ def build_parser() -> argparse.ArgumentParser:
     )
     common.add_argument(
         "-v", "--verbose", action="store_true",
-        help="also show the printer's LOG lines (Marlin: echo, busy, temperature and other lines)",
+        help="also show the printer's LOG lines (Marlin: echo, busy, temperature and other lines; "
+        "g2core: status and queue reports)",
     )
     commands = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     print_parser = commands.add_parser("print", parents=[common], help="stream a G-code file")
@@ -102,12 +103,16 @@ class ProgressBar:
 
 # Marlin lines shown without -v: the rest (echo, busy, temperatures...) is routine.
 _MARLIN_SHOWN = frozenset({marlin.LineKind.ERROR, marlin.LineKind.HALTED, marlin.LineKind.ACTION})
+# g2core's: its exception reports (alarm, shutdown, job kill...); status reports are routine.
+_G2CORE_SHOWN = frozenset({g2core.LineKind.EXCEPTION})
 
 
 def _line_printer(verbose: bool):
-    def show(line: ultimaker.Line | marlin.Line) -> None:
+    def show(line: ultimaker.Line | marlin.Line | g2core.Line) -> None:
         if isinstance(line, marlin.Line):
             shown, text = verbose or line.kind in _MARLIN_SHOWN, line.text
+        elif isinstance(line, g2core.Line):
+            shown, text = verbose or line.kind in _G2CORE_SHOWN, line.text
         else:
             shown, text = verbose or line.kind is not ultimaker.LineKind.LOG, f"{line.kind.value}:{line.text}"
         if shown:

@@ -6,6 +6,7 @@ from contextlib import asynccontextmanager
 import trio
 
 from fake_marlin.host.clients.commstack import CommStackClient
+from fake_marlin.host.clients.g2core import G2coreClient
 from fake_marlin.host.clients.marlin import MarlinClient
 from fake_marlin.host.clients.repetier import RepetierClient
 from fake_marlin.host.clients.ultimaker import UltimakerClient
@@ -17,7 +18,7 @@ from fake_marlin.host.url_port import open_port
 DEFAULT_BAUDRATE = 250000
 _CLIENTS: dict[str, type[Client]] = {
     client.protocol: client
-    for client in (UltimakerClient, MarlinClient, RepetierClient, CommStackClient)
+    for client in (UltimakerClient, MarlinClient, RepetierClient, CommStackClient, G2coreClient)
 }
 PROTOCOLS = tuple(_CLIENTS)
 
