@@ -1,5 +1,5 @@
 """g2core's JSON protocol (wire/g2core.py, emulator/protocols/g2core.py, the session): vectors read
-from g2core's source (docs/protocols.md section 8), and a board in memory on trio's autojump clock."""
+from g2core's source (docs/protocols.md section 7), and a board in memory on trio's autojump clock."""
 
 import json
 

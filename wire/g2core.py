@@ -1,4 +1,4 @@
-"""g2core's JSON protocol on the wire, both ways (docs/protocols.md section 8): its relaxed JSON,
+"""g2core's JSON protocol on the wire, both ways (docs/protocols.md section 7): its relaxed JSON,
 its numbers, the response envelope and footer, the status codes, the single-character commands.
 
 Read from g2core's source (synthetos/g2, edge @ c5b1cd72 = 101.03, master @ 1ff7f600 = 100.26):

@@ -1,4 +1,4 @@
-"""The board's side of g2core's protocol, as a sans-IO state machine (docs/protocols.md section 8).
+"""The board's side of g2core's protocol, as a sans-IO state machine (docs/protocols.md section 7).
 
 Read from g2core's xio.cpp and controller.cpp (synthetos/g2 edge @ c5b1cd72): the host's bytes are
 lines; a line that starts with `{` is a control (a JSON request), a first byte of `!`, `~`, `%`,

@@ -1,4 +1,4 @@
-"""One boot of a g2core board speaking its JSON protocol (docs/protocols.md section 8).
+"""One boot of a g2core board speaking its JSON protocol (docs/protocols.md section 7).
 
 The board answers every line once: a control (`{...}`) at once, ahead of queued G-code; a data
 line as it is read, which happens only while the planner has PLANNER_HEADROOM buffers free, no
