@@ -37,6 +37,14 @@ from fake_marlin.wire.g2core import Number, OutValue
 # compatibility (gcode_parser.cpp:1127-1200) switches the connection to Marlin's protocol.
 CANARIES = frozenset({"M105", "M108", "M110", "M114", "M115"})
 PROGRAM_END = frozenset({"M2", "M30"})
+# g2core's codes that set a mode or a spindle/coolant output and move nothing, which the printer
+# model (Marlin's codes) lacks or means otherwise (M30 deletes an SD file there): taken, in order,
+# as they come (gcode_parser.cpp:677-846).
+MODAL_ONLY = frozenset({
+    "G17", "G18", "G19", "G20", "G21", "G40", "G43", "G49", "G54", "G55", "G56", "G57", "G58",
+    "G59", "G61", "G64", "G80", "G93", "G94", "G95", "M2", "M3", "M4", "M5", "M7", "M8", "M9",
+    "M30", "M48", "M49", "M50", "M51", "M60",
+})
 
 
 class G2coreSession:
@@ -207,6 +215,13 @@ class G2coreSession:
             body["n"] = received.number
         if not text:  # a comment, a blank line
             self._respond(body, g2core.OK, received.size)
+            return
+        if code in MODAL_ONLY:
+            self._before_command(received.text)
+            self.journal.record(text)
+            self._respond(body, g2core.OK, received.size)
+            if code in PROGRAM_END:
+                self.state.stat = MachineState.PROGRAM_END
             return
         if code[:1] in ("G", "M") and code not in self.printer.handlers:
             # gcode_parser.cpp:677-846: refused as it is parsed, so it never runs
