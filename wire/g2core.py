@@ -253,7 +253,7 @@ def parse_reply(line: bytes) -> Reply | None:
     The board writes strict JSON, so the standard library reads it."""
     try:
         parsed = json.loads(line)
-    except (ValueError, UnicodeDecodeError):
+    except (ValueError, UnicodeDecodeError, RecursionError):  # (noise nested past the stack)
         return None
     if not isinstance(parsed, dict):
         return None
