@@ -160,3 +160,51 @@ async def test_a_marlin_host_on_the_same_port_is_answered_in_marlins_words(autoj
         while b"UUID:" not in data:
             data += await stream.receive_some(4096)
         assert b"FIRMWARE_NAME:Marlin g2core-101.03 SOURCE_CODE_URL:https://github.com/synthetos/g2" in data
+
+
+async def test_the_next_connection_after_a_marlin_host_starts_in_g2cores_protocol(autojump_clock):
+    async with memory_printer(firmware="g2core") as printer:
+        marlin = printer.open()
+        await marlin.send_all(b"M105\n")
+        data = b""
+        while b"ok T:" not in data:
+            data += await marlin.receive_some(4096)
+        board = Board(printer.open())  # the port opened again: the banner, and JSON
+        assert (await board.line())["r"]["msg"] == "SYSTEM READY"
+        assert await board.ask(b"{fb:n}\n") == {"r": {"fb": 101.03}, "f": [1, 0, 8]}
+        assert await board.ask(b"N1G1X5F600\n") == {"r": {}, "f": [1, 0, 11]}
+        again = printer.open()  # and a Marlin host once more
+        await again.send_all(b"N0 M110 N0*125\n")
+        data = b""
+        while b"ok\n" not in data:
+            data += await again.receive_some(4096)
+        assert "G1X5F600" in printer.journal
+
+
+async def test_g2cores_gcode_and_the_switch_to_marlins_meanings(autojump_clock):
+    async with memory_printer(firmware="g2core", protocol="g2core") as printer:
+        board = Board(printer.open())
+        await board.line()  # the banner
+        assert (await board.ask(b"G28.2 X0 Y0 Z0\n"))["f"][1] == 0  # g2core's homing
+        assert printer.server.printer.motion.homed == {"X", "Y", "Z"}
+        await board.ask(b"G1 X30 Y20 F3000\n")
+        await board.ask(b"G28.1\n")  # keep this position for G28
+        await board.ask(b"G1 X5 Y5\n")
+        await board.ask(b"G28\n")  # g2core's G28: back to the G28.1 position, no homing
+        await board.ask(b"M400\n")
+        assert printer.server.printer.motion.position[:2] == [30.0, 20.0]
+        assert (await board.ask(b"M100 ({he1st:180})\n"))["f"][1] == 0  # in order with moves
+        await trio.sleep(2)
+        assert printer.server.printer.hotends[0].target == 180
+        await board.ask(b"M101 ({he1at:t})\n")  # waits, and holds the next line unread
+        start = trio.current_time()
+        await board.ask(b"G1 X1\n")
+        assert trio.current_time() - start > 10 and printer.server.printer.hotends[0].temperature(
+            trio.current_time()) > 179
+        assert (await board.ask(b"M100.1 ({he3st:60})\n"))["r"]["he3st"] == 60
+        assert (await board.ask(b"G1 X10 E1.5\n"))["f"][1] == 0  # an E word: Marlin's meanings
+        await board.ask(b"G28\n")  # ...so G28 homes now
+        await board.ask(b"M400\n")
+        assert printer.server.printer.motion.position[:3] == [0.0, 0.0, 0.0]
+        assert printer.journal[:2] == ["G28.2 X0 Y0 Z0", "G1 X30 Y20 F3000"]
+        assert "M100" in printer.journal and "M101" in printer.journal  # (comments go, as ever)

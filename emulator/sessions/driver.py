@@ -28,9 +28,13 @@ class CommandRun:
         journal: Journal,
         on_report: Callable[[Statement], None],
         command: Command | None = None,
+        recorded: str | None = None,
     ) -> None:
         self.printer = printer
         self.line = line
+        # What the journal says it ran, where the model runs it in other words (g2core's G28.2
+        # is the model's G28): the host's line.
+        self._recorded_line = line if recorded is None else recorded
         self.journal = journal
         self.on_report = on_report
         self.reply = Reply()
@@ -75,7 +79,7 @@ class CommandRun:
         if self._recorded:
             return
         self._recorded = True
-        executed = strip_comment(self.line)
+        executed = strip_comment(self._recorded_line)
         if executed and (not self.killed or parse(executed).code == "M112"):
             self.journal.record(executed)
 

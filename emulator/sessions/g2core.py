@@ -9,6 +9,7 @@ free planner buffers (`qr`) whenever they change, at `qv` 1 or 2.
 
 import math
 from collections.abc import Callable, Iterable
+from enum import Enum
 
 import trio
 
@@ -29,6 +30,7 @@ from fake_marlin.emulator.protocols.g2core import (
     Response,
     SingleCharacter,
 )
+from fake_marlin.emulator.sessions.base import Session
 from fake_marlin.emulator.sessions.driver import CommandRun, finish
 from fake_marlin.wire import g2core
 from fake_marlin.wire.g2core import Number, OutValue
@@ -37,6 +39,8 @@ from fake_marlin.wire.g2core import Number, OutValue
 # compatibility (gcode_parser.cpp:1127-1200) switches the connection to Marlin's protocol.
 CANARIES = frozenset({"M105", "M108", "M110", "M114", "M115"})
 PROGRAM_END = frozenset({"M2", "M30"})
+# Seed 001's lightning codes: Marlin's G-code meanings from then on (an `E` word too).
+FLAVOUR_CODES = frozenset({"M82", "M83", "M104", "M109", "M140", "M190", "M106", "M107", "G29"})
 # g2core's codes that set a mode or a spindle/coolant output and move nothing, which the printer
 # model (Marlin's codes) lacks or means otherwise (M30 deletes an SD file there): taken, in order,
 # as they come (gcode_parser.cpp:677-846).
@@ -45,6 +49,13 @@ MODAL_ONLY = frozenset({
     "G59", "G61", "G64", "G80", "G93", "G94", "G95", "M2", "M3", "M4", "M5", "M7", "M8", "M9",
     "M30", "M48", "M49", "M50", "M51", "M60",
 })
+
+
+class Flavour(Enum):
+    """The G-code's meaning, switched apart from the protocol (seed 001's lightning codes)."""
+
+    G2CORE = "g2core"
+    MARLIN = "marlin"
 
 
 class G2coreSession:
@@ -57,7 +68,7 @@ class G2coreSession:
         firmware: Firmware | None = None,
         restart: Callable[[str], None] = lambda reason: None,
         build: Build | None = None,
-        marlin: Callable[[], object] | None = None,
+        marlin: Callable[[], Session] | None = None,
     ) -> None:
         self.printer = printer
         self.journal = journal
@@ -74,15 +85,13 @@ class G2coreSession:
         self._resetting = False
         self._last_room: int | None = None
         self._make_marlin = marlin
-        self._marlin: object | None = None  # the Marlin session a canary handed the line to
+        self._marlin: Session | None = None  # the Marlin session a canary handed the line to
         self._marlin_started = trio.Event()
+        self._marlin_scope = trio.CancelScope()
         self._sr_requested = False  # report.cpp: a line read, a cycle's end, motion
+        self.flavour = Flavour.G2CORE
 
     # -- what a session is ------------------------------------------------------------------
-    @property
-    def active(self):
-        return self._marlin or self
-
     def boot(self) -> None:
         view = self._view()
         body: dict[str, OutValue] = {name: board.READ[name](view)
@@ -92,7 +101,7 @@ class G2coreSession:
 
     def feed(self, data: bytes) -> None:
         if self._marlin is not None:
-            self._marlin.feed(data)  # type: ignore[attr-defined]
+            self._marlin.feed(data)
             return
         if self._resetting:
             return
@@ -100,21 +109,35 @@ class G2coreSession:
         self._read()
 
     async def run(self) -> None:
-        async with trio.open_nursery() as nursery:
-            nursery.start_soon(self._execute)
-            nursery.start_soon(self._report)
-            await self._marlin_started.wait()
-            nursery.cancel_scope.cancel()  # Marlin's protocol from now on: its session runs
-        await self._marlin.run()  # type: ignore[union-attr]
+        while True:
+            async with trio.open_nursery() as nursery:
+                nursery.start_soon(self._execute)
+                nursery.start_soon(self._report)
+                await self._marlin_started.wait()
+                nursery.cancel_scope.cancel()  # Marlin's protocol from now on: its session runs
+            assert self._marlin is not None
+            with self._marlin_scope:
+                await self._marlin.run()
+            # The port was opened again (announce): the new connection is g2core's again.
+            self._marlin_scope = trio.CancelScope()
 
     def announce(self, statements: Iterable[Statement]) -> None:
         """What the firmware says on its own: the banner to a host that opens the port (10 ms
-        after a USB connect, controller.cpp:340-366), an error as an exception report."""
+        after a USB connect, controller.cpp:340-366), which ends a Marlin host's connection's
+        Marlin mode; an error as an exception report (or in Marlin's words, to a Marlin host)."""
         statements = tuple(statements)
         if any(statement.key == "connected" for statement in statements):
+            if self._marlin is not None:
+                self._marlin_scope.cancel()  # run() starts g2core's tasks again
+                self._marlin, self._marlin_started = None, trio.Event()
+                self.protocol = G2coreProtocol()
+                self._waiting = None
             self.boot()
             statements = tuple(statement for statement in statements
                                if statement.key != "connected")
+        if self._marlin is not None:
+            self._marlin.announce(statements)
+            return
         for line in self.firmware.words.lines(statements):
             if line.startswith("Error:") or line.startswith("!!"):
                 self._say(Report("er", {"fb": Number(self.build.fb, 2), "st": 200,
@@ -130,6 +153,8 @@ class G2coreSession:
 
     _blocked = False
     _held_since = 0.0
+    _after_wait: Callable[[], object] | None = None  # M100's JSON, run when its wait ends
+    _home_position = (0.0, 0.0, 0.0)  # G28.1's, where g2core's G28 goes
 
     # -- reading ----------------------------------------------------------------------------
     def _can_read_gcode(self) -> bool:
@@ -200,11 +225,14 @@ class G2coreSession:
         self._changed.set()
 
     def _gcode(self, received: CommandReceived) -> None:
-        text = g2core_to_model(received.text)
-        code = parse(text).code if text else ""
+        line = normalize_gcode(received.text)
+        code = parse(line).code if line else ""
         if code in CANARIES and self._make_marlin is not None:
             self._hand_to_marlin(received)
             return
+        if code in FLAVOUR_CODES or _has_word(line, "E"):
+            self.flavour = Flavour.MARLIN  # from this line on, Marlin's meanings
+        text, json_after = _to_model(self, line)
         if received.number is not None:
             self.state.line = received.number
         body: dict[str, OutValue] = {}
@@ -213,26 +241,39 @@ class G2coreSession:
             body["gc"] = received.text
         if jv >= 4 and received.number:
             body["n"] = received.number
+        if line.startswith("M100.1"):  # its JSON at once, answered as a request is
+            answer, status = board.answer(self._view(), json_after)
+            body.update(answer)
+            self._respond(body, status, received.size)
+            return
         if not text:  # a comment, a blank line
             self._respond(body, g2core.OK, received.size)
             return
+        executed = received.text.split(";", 1)[0].strip()  # what the journal says ran
         if code in MODAL_ONLY:
             self._before_command(received.text)
-            self.journal.record(text)
+            self.journal.record(executed)
             self._respond(body, g2core.OK, received.size)
             if code in PROGRAM_END:
                 self.state.stat = MachineState.PROGRAM_END
             return
-        if code[:1] in ("G", "M") and code not in self.printer.handlers:
+        model_code = parse(text).code
+        if model_code[:1] in ("G", "M") and model_code not in self.printer.handlers:
             # gcode_parser.cpp:677-846: refused as it is parsed, so it never runs
-            self._respond(body, g2core.MCODE_UNSUPPORTED if code[0] == "M"
+            self._respond(body, g2core.MCODE_UNSUPPORTED if model_code[0] == "M"
                           else g2core.GCODE_COMMAND_UNSUPPORTED, received.size)
             return
         self._before_command(received.text)
         if self.printer.halted:
             return
-        run = CommandRun(self.printer, text, self.journal, lambda statement: None)
+        run = CommandRun(self.printer, text, self.journal, lambda statement: None,
+                         recorded=executed)
         until = run.advance()
+        if json_after:  # M100's JSON, in order with the moves: once the ones before it are done
+            self._after_wait = lambda: board.answer(self._view(), json_after)
+            if until is None:
+                self._after_wait()
+                self._after_wait = None
         status = _status(run.reply, code)
         self._respond(body, status, received.size)
         if code in PROGRAM_END and status == g2core.OK:
@@ -247,10 +288,10 @@ class G2coreSession:
         """A Marlin host showed itself: Marlin's protocol from this line until the port closes."""
         assert self._make_marlin is not None
         marlin = self._marlin = self._make_marlin()
-        marlin.boot()  # type: ignore[attr-defined]
+        marlin.boot()
         self._marlin_started.set()
         line = received.text if received.number is None else f"N{received.number} {received.text}"
-        marlin.feed(line.encode() + b"\n")  # type: ignore[attr-defined]
+        marlin.feed(line.encode() + b"\n")
 
 
     # -- its own time -----------------------------------------------------------------------
@@ -260,6 +301,9 @@ class G2coreSession:
                 run, until = self._waiting
                 await finish(run, until)
                 self._waiting = None
+                if self._after_wait is not None:
+                    self._after_wait()
+                    self._after_wait = None
                 self._read()
             work = self._work = trio.Event()
             await work.wait()
@@ -331,33 +375,77 @@ def _status(reply: Reply, code: str) -> int:
     return g2core.OK
 
 
-def g2core_to_model(text: str) -> str:
-    """A g2core-flavour line in the words of the printer model: G28.2 homes, G28.3 sets the
-    origin, A (the first extruder's axis) is E, M6 takes the tool already selected; comments
-    and the active `({...})` ones go (M100's JSON is not run)."""
+def normalize_gcode(text: str) -> str:
+    """A data line as g2core's parser first reads it (gcode_parser.cpp:320-420): comments go (the
+    active `({...})` one stays, for M100/M101), `;` ends it, upper case."""
     line = text.split(";", 1)[0]
     out: list[str] = []
     depth = 0
-    for char in line:
+    active = ""
+    for index, char in enumerate(line):
         if char == "(":
+            if depth == 0 and line[index + 1:index + 2] == "{":
+                active = line[index + 1:line.find(")", index) if ")" in line[index:] else None]
             depth += 1
         elif char == ")":
             depth = max(0, depth - 1)
         elif not depth:
             out.append(char)
-    line = "".join(out).strip().upper()
+    body = "".join(out).strip().upper()
+    return f"{body} ({active})" if active else body
+
+
+def _has_word(line: str, letter: str) -> bool:
+    head = line.split("(", 1)[0]
+    return letter in head
+
+
+def _active_json(line: str) -> dict[str, g2core.JsonValue]:
+    start = line.find("({")
+    if start < 0:
+        return {}
+    try:
+        return g2core.parse_request(line[start + 1:line.rfind(")")])
+    except g2core.RelaxedJsonError:
+        return {}
+
+
+def _to_model(self: "G2coreSession", line: str) -> tuple[str, dict[str, g2core.JsonValue]]:
+    """A normalized line in the printer model's words, and M100's JSON to run after it: G28.2
+    homes, G28.3 sets the origin, G28.1 keeps the position that g2core's G28 goes to (Marlin's
+    G28 homes, once the flavour is Marlin's), A is the first extruder's axis (E), M6 takes the
+    tool already selected, M100 runs its JSON when the moves before it are done, M101 waits
+    for a heater at temperature."""
     if not line:
-        return ""
-    head = line.replace(" ", "")
+        return "", {}
+    head = line.split("(", 1)[0].replace(" ", "")
+    code = parse(head).code
     if head.startswith("G28.2"):
-        return "G28" + _axis_words(head[5:], drop_values=True)
+        return "G28" + _axis_words(head[5:], drop_values=True), {}
     if head.startswith("G28.3"):
-        return "G92" + _axis_words(head[5:])
-    if head.startswith("M6") and not head[2:3].isdigit():
-        return "M400"  # the tool change is queued, and no more
-    if head.startswith(("M100", "M101")):
-        return "M400"
-    return line.replace("A", "E") if "E" not in line else line
+        return "G92" + _axis_words(head[5:]), {}
+    if head.startswith("G28.1"):
+        x, y, z = self.printer.motion.position[:3]  # the model's (planned) position
+        self._home_position = (x, y, z)
+        return "M400", {}
+    if code == "G28" and self.flavour is Flavour.G2CORE:
+        x, y, z = self._home_position
+        return f"G0 X{x:.3f} Y{y:.3f} Z{z:.3f}", {}  # g2core's G28: to the G28.1 position
+    if code == "M6":
+        return "M400", {}  # the tool change is queued, and no more
+    if head.startswith("M100.1"):
+        return "", _active_json(line)
+    if code == "M100":
+        return "M400", _active_json(line)
+    if code == "M101":
+        waits = [name for name, value in _active_json(line).items()
+                 if value is True and name.startswith("he") and name.endswith("at")]
+        if waits:
+            heater = waits[0][2]
+            target = (self.printer.bed if heater == "3" else self.printer.hotends[0]).target
+            return (f"M190 S{target:.1f}" if heater == "3" else f"M109 S{target:.1f}"), {}
+        return "M400", {}
+    return head.replace("A", "E") if "E" not in head else head, {}
 
 
 def _axis_words(words: str, drop_values: bool = False) -> str:
