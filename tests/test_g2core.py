@@ -208,3 +208,21 @@ async def test_g2cores_gcode_and_the_switch_to_marlins_meanings(autojump_clock):
         assert printer.server.printer.motion.position[:3] == [0.0, 0.0, 0.0]
         assert printer.journal[:2] == ["G28.2 X0 Y0 Z0", "G1 X30 Y20 F3000"]
         assert "M100" in printer.journal and "M101" in printer.journal  # (comments go, as ever)
+
+
+async def test_motion_modes_probing_machine_coordinates_and_the_program_end(autojump_clock):
+    async with memory_printer(firmware="g2core", protocol="g2core") as printer:
+        board = Board(printer.open())
+        await board.line()
+        await board.ask(b"{sr:{momo:t,stat:t,posz:t}}\n")
+        await board.ask(b"G0 X10\n")
+        assert (await board.ask(b"{sr:n}\n"))["r"]["sr"]["momo"] == 0
+        await board.ask(b"G38.2 Z-5 F100\n")
+        await board.ask(b"G53 G0 X0\n")
+        await board.ask(b"G2 X10 Y0 I5 J0 F600\n")
+        assert (await board.ask(b"{sr:n}\n"))["r"]["sr"]["momo"] == 2
+        await board.ask(b"M30\n")
+        assert (await board.ask(b"{sr:n}\n"))["r"]["sr"]["stat"] == 5  # M30 waits its turn
+        while (report := await board.line()).get("sr", {}).get("stat") != 4:
+            pass
+        assert printer.server.printer.motion.position[:3] == [10.0, 0.0, -5.0]

@@ -80,6 +80,7 @@ class BoardState:
     spindle: int = 0  # spc
     spindle_speed: float = 0.0  # sps
     coolant: tuple[int, int] = (0, 0)  # com, cof
+    motion_mode: int = 4  # momo: G80 (motion canceled) until a G0-G3
 
 
 class G2coreError(Exception):
@@ -154,7 +155,7 @@ READ: dict[str, Getter] = {
     "feed": lambda view: Number(view.printer.motion.feedrate, 2),  # type: ignore[attr-defined]
     "unit": _constant(1),  # G21
     "coor": _constant(1),  # G54
-    "momo": lambda view: 1 if view.velocity() else 0,
+    "momo": lambda view: view.state.motion_mode,
     "plan": _constant(0),
     "path": _constant(2),
     "dist": lambda view: int(view.printer.motion.relative),  # type: ignore[attr-defined]

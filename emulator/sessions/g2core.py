@@ -39,6 +39,7 @@ from fake_marlin.wire.g2core import Number, OutValue
 # compatibility (gcode_parser.cpp:1127-1200) switches the connection to Marlin's protocol.
 CANARIES = frozenset({"M105", "M108", "M110", "M114", "M115"})
 PROGRAM_END = frozenset({"M2", "M30"})
+MOTION_MODES = {"G0": 0, "G1": 1, "G2": 2, "G3": 3}  # `momo` (gcode.h)
 # Seed 001's lightning codes: Marlin's G-code meanings from then on (an `E` word too).
 FLAVOUR_CODES = frozenset({"M82", "M83", "M104", "M109", "M140", "M190", "M106", "M107", "G29"})
 # g2core's codes that set a mode or a spindle/coolant output and move nothing, which the printer
@@ -155,6 +156,7 @@ class G2coreSession:
     _held_since = 0.0
     _after_wait: Callable[[], object] | None = None  # M100's JSON, run when its wait ends
     _home_position = (0.0, 0.0, 0.0)  # G28.1's, where g2core's G28 goes
+    _program_ends = False  # an M2/M30 read, waiting for the moves before it
 
     # -- reading ----------------------------------------------------------------------------
     def _can_read_gcode(self) -> bool:
@@ -255,7 +257,7 @@ class G2coreSession:
             self.journal.record(executed)
             self._respond(body, g2core.OK, received.size)
             if code in PROGRAM_END:
-                self.state.stat = MachineState.PROGRAM_END
+                self._program_ends = True  # once the moves before it are done (it is queued)
             return
         model_code = parse(text).code
         if model_code[:1] in ("G", "M") and model_code not in self.printer.handlers:
@@ -276,9 +278,9 @@ class G2coreSession:
                 self._after_wait = None
         status = _status(run.reply, code)
         self._respond(body, status, received.size)
-        if code in PROGRAM_END and status == g2core.OK:
-            self.state.stat = MachineState.PROGRAM_END
-        elif self.printer.planner.moves(trio.current_time()):
+        if model_code in MOTION_MODES and status == g2core.OK:
+            self.state.motion_mode = MOTION_MODES[model_code]
+        if self.printer.planner.moves(trio.current_time()):
             self.state.stat = MachineState.RUN
         if until is not None:
             self._waiting = (run, until)
@@ -314,7 +316,11 @@ class G2coreSession:
             now = trio.current_time()
             view = self._view()
             moving = bool(self.printer.planner.moves(now))
-            if self._waiting is None and not moving and (
+            if self._waiting is None and not moving and self._program_ends:
+                self._program_ends = False
+                self.state.stat = MachineState.PROGRAM_END  # M2/M30, reached
+                self._sr_requested = True
+            elif self._waiting is None and not moving and (
                     self.state.stat in (MachineState.RUN, MachineState.HOMING)):
                 self.state.stat = MachineState.PROGRAM_STOP  # the cycle's end
                 self._sr_requested = True
@@ -431,6 +437,12 @@ def _to_model(self: "G2coreSession", line: str) -> tuple[str, dict[str, g2core.J
     if code == "G28" and self.flavour is Flavour.G2CORE:
         x, y, z = self._home_position
         return f"G0 X{x:.3f} Y{y:.3f} Z{z:.3f}", {}  # g2core's G28: to the G28.1 position
+    if head.startswith("G38."):  # a probe that meets the surface at its target (101.03
+        return "G1" + _axis_words(head[5:]), {}  # sends no probe report)
+    if code == "G53":  # machine coordinates, which are the model's (it has no work offsets)
+        return head[3:] or "M400", {}
+    if code == "G10":
+        return "M400", {}  # offsets and the tool table: taken, not applied (docs: 7.14)
     if code == "M6":
         return "M400", {}  # the tool change is queued, and no more
     if head.startswith("M100.1"):
