@@ -226,3 +226,12 @@ async def test_motion_modes_probing_machine_coordinates_and_the_program_end(auto
         while (report := await board.line()).get("sr", {}).get("stat") != 4:
             pass
         assert printer.server.printer.motion.position[:3] == [10.0, 0.0, -5.0]
+
+
+async def test_each_board_has_its_own_id(autojump_clock):
+    ids = []
+    for seed in (1, 2):  # (a farm's printers differ by number as by seed: the identity's)
+        async with memory_printer(firmware="g2core", protocol="g2core", seed=seed) as printer:
+            board = Board(printer.open())
+            ids.append((await board.line())["r"]["id"])
+    assert ids[0] != ids[1] and all(len(i) == 19 and i.count("-") == 3 for i in ids)

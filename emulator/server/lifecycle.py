@@ -19,6 +19,7 @@ from fake_marlin.emulator.protocols.avr_memory import BoardMemory
 from fake_marlin.emulator.sessions.base import Session
 from fake_marlin.emulator.sessions.commstack import CommStackSession
 from fake_marlin.emulator.sessions.detect import Detected, DetectingSession
+from fake_marlin.emulator.printer.g2core import Build
 from fake_marlin.emulator.sessions.g2core import G2coreSession
 from fake_marlin.emulator.sessions.marlin import MarlinSession
 from fake_marlin.emulator.sessions.repetier import RepetierSession
@@ -214,9 +215,12 @@ class PrinterServer:
                 self.printer, self.journal, self._send, reason, self._before_command, firmware
             )
         if protocol == "g2core":
+            digits = firmware.identity.uuid.replace("-", "")[:16]
             return G2coreSession(
                 self.printer, self.journal, self._send, self._before_command, firmware,
                 self._request_restart,
+                # The board's `id` (Motate's unique id, xxxx-xxxx-xxxx-xxxx): the printer's own.
+                build=Build(id="-".join(digits[at:at + 4] for at in range(0, 16, 4))),
                 marlin=lambda: self._marlin_session(reason, self.firmware.speaking("marlin")),
             )
         if protocol == "commstack":
