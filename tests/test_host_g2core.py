@@ -510,6 +510,7 @@ class FakeBoard:
 
     def __init__(self, stream, move_time=0.05, statuses=None, banner=True, fb=101.03) -> None:
         self.stream = stream
+        self._sending = trio.Lock()  # the reader and the motion task both write
         self.move_time = move_time
         self.statuses = statuses or {}  # G-code text -> the status its response carries
         self.banner = banner
@@ -523,11 +524,15 @@ class FakeBoard:
         self.most_in_rx = 0
         self._moved = trio.Event()
 
+    async def _send(self, data: bytes) -> None:
+        async with self._sending:
+            await self.stream.send_all(data)
+
     async def run(self) -> None:
         async with trio.open_nursery() as nursery:
             nursery.start_soon(self._motion)
             if self.banner:
-                await self.stream.send_all(BANNER)
+                await self._send(BANNER)
             while True:
                 data = await self.stream.receive_some(4096)
                 if not data:
@@ -568,7 +573,7 @@ class FakeBoard:
             return  # (no cycle to hold in this board)
         if text == "\x04":  # (what came before it is dropped already)
             self.planner.clear()
-            await self.stream.send_all(wire.report("er", {"fb": wire.Number(self.fb, 2), "st": 207,
+            await self._send(wire.report("er", {"fb": wire.Number(self.fb, 2), "st": 207,
                                                           "msg": "Kill job - Job killed by ^d"}))
             await self._state(4)
             return
@@ -582,7 +587,7 @@ class FakeBoard:
             body, status = {name: values[name]}, 0
         else:
             body, status = {name: None}, 100
-        await self.stream.send_all(wire.response(body, status, len(line) + 2))
+        await self._send(wire.response(body, status, len(line) + 2))
 
     async def _gcode(self, line: str) -> None:
         number, _, text = line.partition(" ")
@@ -592,12 +597,12 @@ class FakeBoard:
             self.planner.append(text)
             self._moved.set()
             await self._state(5)
-        await self.stream.send_all(wire.response({"n": int(number[1:])}, status, len(line) + 1))
+        await self._send(wire.response({"n": int(number[1:])}, status, len(line) + 1))
 
     async def _state(self, stat: int) -> None:
         if stat != self.stat:
             self.stat = stat
-            await self.stream.send_all(wire.report("sr", {"stat": stat}))
+            await self._send(wire.report("sr", {"stat": stat}))
 
     async def _motion(self) -> None:
         while True:
