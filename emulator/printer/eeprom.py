@@ -129,8 +129,9 @@ def show(printer, command: Command, now: float):
 
 
 def check(printer, command: Command, now: float):
-    if not _enabled(printer):
-        return reply(state("unknown_command", command=command.text))
+    if not _enabled(printer):  # as Printer.execute() says a code it has no handler for
+        return reply(state("unknown_command", command=command.text,
+                           name=command.code or command.text.upper()))
     return reply(state("eeprom_ok"))
 
 
