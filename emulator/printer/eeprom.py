@@ -9,6 +9,7 @@ feedrates, accelerations, home offset, PID, retraction; the password too, where 
 
 import binascii
 import json
+import math
 import os
 from pathlib import Path
 
@@ -22,8 +23,52 @@ _STORED = ("steps_per_mm", "max_feedrate", "max_acceleration", "acceleration",
            "retract_feedrate", "retract_zlift", "recover_extra", "recover_feedrate")
 
 
+# What each stored setting must be for the model to run with it: the lists' lengths (None: a
+# number), and whether it must be above 0 (the planner divides by steps, feedrates and
+# accelerations) or only finite.
+_SHAPES: dict[str, tuple[int | None, bool]] = {
+    "steps_per_mm": (4, True), "max_feedrate": (4, True), "max_acceleration": (4, True),
+    "acceleration": (None, True), "retract_acceleration": (None, True),
+    "travel_acceleration": (None, True), "home_offset": (3, False), "pid": (3, False),
+    "retract_length": (None, False), "retract_feedrate": (None, True),
+    "retract_zlift": (None, False), "recover_extra": (None, False),
+    "recover_feedrate": (None, True),
+}
+
+
 class EepromFileError(Exception):
     """An EEPROM file that cannot be read or written; the message names it and says why."""
+
+
+def _number(value: object, positive: bool) -> bool:
+    return (isinstance(value, (int, float)) and not isinstance(value, bool)
+            and math.isfinite(value) and (value > 0 or not positive))
+
+
+def _shown(value: object) -> str:
+    text = json.dumps(value)
+    return text if len(text) <= 40 else text[:37] + "..."
+
+
+def _problem(stored: dict[str, object]) -> str | None:
+    """What is wrong with the settings of an EEPROM file (a hand edit), naming the setting;
+    None if the model can take them all."""
+    for name, (length, positive) in _SHAPES.items():
+        if name not in stored:
+            continue
+        value = stored[name]
+        what = "a number" + (" above 0" if positive else "")
+        if length is None:
+            if not _number(value, positive):
+                return f"{name} must be {what}, not {_shown(value)}"
+        elif not (isinstance(value, list) and len(value) == length
+                  and all(_number(item, positive) for item in value)):
+            plural = "numbers" + (" above 0" if positive else "")
+            return f"{name} must be a list of {length} {plural}, not {_shown(value)}"
+    password = stored.get("password")
+    if password is not None and not isinstance(password, str):
+        return f"password must be a string, not {_shown(password)}"
+    return None
 
 
 class EepromFile:
@@ -40,6 +85,9 @@ class EepromFile:
                                       f"{error}") from None
             if not isinstance(stored, dict):
                 raise EepromFileError(f"{self.path}: not an EEPROM file fake-marlin wrote")
+            if (problem := _problem(stored)) is not None:
+                raise EepromFileError(f"{self.path}: not an EEPROM file fake-marlin wrote: "
+                                      f"{problem}")
             self.stored = stored
 
     def store(self, values: dict[str, object]) -> None:
