@@ -2,9 +2,14 @@
 
 Files are shown under FAT 8.3 names (`TEST~1.GCO`) as Marlin's SdFat does, and with their long
 names where EXTENDED_M20 asks for them. M23 accepts either.
+
+Every command set reads and writes the card through SdCard (stat, listing, files_below, read,
+create, delete, inside): a file that cannot be read, a name the system refuses (too long, a NUL
+in it) or a symlink loop is then a file that is not there, not an exception out of the server.
 """
 
 import re
+import stat as stat_mode
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -39,6 +44,46 @@ def _short_names(names: list[str]) -> dict[str, str]:
     return result
 
 
+_FAT_FIRST = ((0 << 9) | (1 << 5) | 1, 0)  # 1980-01-01 00:00:00
+_FAT_LAST = ((127 << 9) | (12 << 5) | 31, (23 << 11) | (59 << 5) | 29)  # 2107-12-31 23:59:58
+
+
+def fat_stamp(mtime: float) -> tuple[int, int]:
+    """A modification time as a FAT directory entry keeps it: (date, time), each 16 bits.
+
+    FAT has no time zone: the card holds the clock of the machine that wrote it. The model
+    says it in UTC, so that M20 T says the same on any machine; before 1980 and after 2107,
+    which FAT cannot hold, the nearest it can (as Linux's vfat does)."""
+    try:
+        stamp = time.gmtime(mtime)
+    except (OverflowError, OSError, ValueError):  # beyond what the C library's time_t holds
+        return _FAT_FIRST if mtime < 0 else _FAT_LAST
+    if stamp.tm_year < 1980:
+        return _FAT_FIRST
+    if stamp.tm_year > 2107:
+        return _FAT_LAST
+    date = ((stamp.tm_year - 1980) << 9) | (stamp.tm_mon << 5) | stamp.tm_mday
+    clock = (stamp.tm_hour << 11) | (stamp.tm_min << 5) | (stamp.tm_sec // 2)
+    return date, clock
+
+
+@dataclass(frozen=True)
+class CardEntry:
+    """A file or folder of the card, as a listing sees it (its stat, symlinks followed)."""
+
+    name: str
+    path: Path
+    is_dir: bool
+    is_file: bool  # a regular file (neither: a device, a FIFO...)
+    size: int  # bytes (what the system says of a folder: callers say 0)
+    mtime: float  # seconds since the epoch
+
+
+# What a path of the card can raise besides OSError: ValueError for a NUL in a name,
+# RuntimeError for a symlink loop (Path.resolve()).
+_PATH_ERRORS = (OSError, ValueError, RuntimeError)
+
+
 @dataclass
 class OpenFile:
     path: Path
@@ -57,26 +102,116 @@ class SdCard:
         self.reset()
 
     def reset(self) -> None:
-        self.mounted = self.root is not None and self.root.is_dir()
+        self.mounted = self.inserted()
         self.selected: OpenFile | None = None
         self.printing = False
         self.saving: Path | None = None
         self.binary_mode = False  # M28 B1 asked for the binary protocol (the session takes it)
 
-    # -- the directory -----------------------------------------------------------------
+    # -- reading and writing the directory ------------------------------------------------
+    def inserted(self) -> bool:
+        """Whether there is a card: the card's directory is there (mounted or not)."""
+        entry = self.stat(self.root)
+        return entry is not None and entry.is_dir
+
+    def stat(self, path: Path | None) -> CardEntry | None:
+        """The file or folder at `path`; None where there is none (or it cannot be looked at)."""
+        if path is None:
+            return None
+        try:
+            info = path.stat()
+        except _PATH_ERRORS:
+            return None
+        return CardEntry(path.name, path, stat_mode.S_ISDIR(info.st_mode),
+                         stat_mode.S_ISREG(info.st_mode), info.st_size, info.st_mtime)
+
+    def listing(self, directory: Path | None = None) -> list[CardEntry] | None:
+        """What a folder holds (the card's own directory by default), by name, hidden entries
+        (a leading dot) too: each command set leaves out and orders what its firmware does.
+        None where the folder is not there, or is no folder."""
+        folder = self.root if directory is None else directory
+        if folder is None:
+            return None
+        try:
+            names = sorted(child.name for child in folder.iterdir())
+        except _PATH_ERRORS:
+            return None
+        entries = (self.stat(folder / name) for name in names)
+        return [entry for entry in entries if entry is not None]
+
+    def files_below(self, directory: Path | None = None) -> list[tuple[str, CardEntry]]:
+        """Every file in a folder and the folders in it, at any depth (the folders a symlink
+        leads to not entered): its path from the folder, with `/`, and its entry. In no
+        order: the caller's firmware orders them."""
+        folder = self.root if directory is None else directory
+        if folder is None:
+            return []
+        found = []
+        try:
+            for path in folder.rglob("*"):
+                entry = self.stat(path)
+                if entry is not None and entry.is_file:
+                    found.append((path.relative_to(folder).as_posix(), entry))
+        except _PATH_ERRORS:
+            pass  # a folder that went, or cannot be read: what was found so far
+        return found
+
+    def read(self, path: Path) -> bytes | None:
+        """The bytes of a file; None if it cannot be read."""
+        try:
+            return path.read_bytes()
+        except _PATH_ERRORS:
+            return None
+
+    def create(self, path: Path, data: bytes = b"", make_folders: bool = False) -> bool:
+        """A file made (or emptied) holding `data`, with the folders on its way where
+        `make_folders` says so; False if it cannot be."""
+        try:
+            if make_folders:
+                path.parent.mkdir(parents=True, exist_ok=True)
+            path.write_bytes(data)
+        except _PATH_ERRORS:
+            return False
+        return True
+
+    def delete(self, path: Path) -> bool:
+        """A file deleted; False if it cannot be (not there, a folder, not allowed)."""
+        try:
+            path.unlink()
+        except _PATH_ERRORS:
+            return False
+        return True
+
+    def inside(self, path: Path, root_too: bool = False) -> Path | None:
+        """`path` with its symlinks and `..` resolved, if that is on the card (the card's
+        directory itself only with `root_too`); None for a path that would leave it, one the
+        system cannot resolve, or no card."""
+        if self.root is None:
+            return None
+        try:
+            root = self.root.resolve()
+            resolved = path.resolve()
+        except _PATH_ERRORS:
+            return None
+        if root in resolved.parents or (root_too and resolved == root):
+            return resolved
+        return None
+
+    # -- the directory as Marlin sees it ---------------------------------------------------
     def entries(self) -> list[tuple[str, str, Path]]:
         """(8.3 path, long path, file) for every file, depth first, as M20 lists them."""
         found = []
 
         def walk(directory: Path, short_prefix: str, long_prefix: str) -> None:
-            children = sorted(p for p in directory.iterdir() if not p.name.startswith("."))
-            shorts = _short_names([p.name for p in children])
+            children = [entry for entry in self.listing(directory) or ()
+                        if not entry.name.startswith(".")]
+            shorts = _short_names([entry.name for entry in children])
             for child in children:
                 short, long = short_prefix + shorts[child.name], long_prefix + child.name
-                if child.is_dir():
-                    walk(child, short + "/", long + "/")
-                elif child.is_file():
-                    found.append((short, long, child))
+                if child.is_dir:
+                    walk(child.path, short + "/", long + "/")
+                elif child.is_file:
+                    found.append((short, long, child.path))
 
         if self.mounted and self.root is not None:
             walk(self.root, "", "")
@@ -94,9 +229,7 @@ class SdCard:
         reach outside it, or with no card."""
         if self.root is None:
             return None
-        root = self.root.resolve()
-        path = (root / name.strip().lstrip("/")).resolve()
-        return path if root in path.parents else None
+        return self.inside(self.root / name.strip().lstrip("/"))
 
     # -- printing ----------------------------------------------------------------------
     def next_line(self) -> str | None:
@@ -117,12 +250,7 @@ class SdCard:
         its path and the name `Writing to file:` shows; None if it cannot be."""
         found = self.find(name)
         path = found[1] if found else self.path_on_card(name)
-        if path is None:
-            return None
-        try:
-            path.parent.mkdir(parents=True, exist_ok=True)
-            path.write_bytes(b"")
-        except OSError:
+        if path is None or not self.create(path, make_folders=True):
             return None
         return path, found[0] if found else name.strip()
 
@@ -137,9 +265,7 @@ class SdCard:
     def remove(self, path: Path) -> str | None:
         """Delete a file of the card; its 8.3 name, or None if it was not there."""
         short = next((short for short, _, entry in self.entries() if entry == path), None)
-        try:
-            path.unlink()
-        except OSError:
+        if not self.delete(path):
             return None
         return short or path.name
 
@@ -168,11 +294,11 @@ def list_files(printer, command: Command, now: float):
     key = "file_entry" + ("_long" if with_long else "") + ("_time" if with_time else "")
     lines = [state("file_list_begin")]
     for short, long, path in printer.sd.entries():
-        info = path.stat()
-        stamp = time.localtime(info.st_mtime)
-        fat_date = ((stamp.tm_year - 1980) << 9) | (stamp.tm_mon << 5) | stamp.tm_mday
-        fat_time = (stamp.tm_hour << 11) | (stamp.tm_min << 5) | (stamp.tm_sec // 2)
-        lines.append(state(key, short=short, size=info.st_size, long=long,
+        info = printer.sd.stat(path)
+        if info is None:  # gone since the listing
+            continue
+        fat_date, fat_time = fat_stamp(info.mtime)
+        lines.append(state(key, short=short, size=info.size, long=long,
                            stamp=f"0x{fat_date:04X}{fat_time:04X}"))
     lines.append(state("file_list_end"))
     return reply(*lines)
@@ -197,7 +323,10 @@ def select_file(printer, command: Command, now: float):
     if found is None:
         return reply(state("open_failed", name=name))
     short, path = found
-    printer.sd.selected = OpenFile(path, short, path.read_bytes())
+    data = printer.sd.read(path)
+    if data is None:
+        return reply(state("open_failed", name=name))
+    printer.sd.selected = OpenFile(path, short, data)
     printer.sd.printing = False
     return reply(state("file_opened", name=short, size=len(printer.sd.selected.data), long=path.name),
                  state("file_selected"))
@@ -264,10 +393,11 @@ def delete_file(printer, command: Command, now: float):
     if found is None:
         return reply(state("deletion_failed", name=name))
     short, path = found
+    if not printer.sd.delete(path):
+        return reply(state("deletion_failed", name=name))
     if printer.sd.selected is not None and printer.sd.selected.path == path:
         printer.sd.selected = None
         printer.sd.printing = False
-    path.unlink()
     return reply(state("file_deleted", name=short))
 
 
