@@ -4,8 +4,10 @@ PrusaLink's regular expressions below are its own (prusa/link/printer_adapter/st
 regular_expressions.py of prusalink 0.8.1): every answer it reads must match them exactly.
 """
 
+import os
 import re
 import struct
+import time
 from pathlib import Path
 
 import pytest
@@ -357,6 +359,25 @@ async def test_the_card_as_prusa_lists_and_prints_it(autojump_clock, tmp_path: P
         assert only(await terminal.command("M27")) == ["Not SD printing"]
         failed = only(await terminal.command("M23 missing.gco"))
         assert failed[-1] == "open failed, File: missing.gco."
+
+
+async def test_m20_t_says_the_fat_time_in_utc_whatever_the_machines_time_zone(
+        autojump_clock, tmp_path: Path, monkeypatch):
+    (tmp_path / "cube.gcode").write_text("G28\n")
+    (tmp_path / "old.gcode").write_text("G28\n")
+    os.utime(tmp_path / "cube.gcode", (1_700_000_000, 1_700_000_000))  # 2023-11-14 22:13:20 UTC
+    os.utime(tmp_path / "old.gcode", (0, 0))  # 1970: before FAT's first day
+    monkeypatch.setenv("TZ", "JST-9")
+    time.tzset()
+    try:
+        async with memory_printer(firmware="prusa", sd_dir=tmp_path) as running:
+            terminal = await booted(running)
+            assert only(await terminal.command("M20 T")) == [
+                "Begin file list", "CUBE~1.GCO 4 0x576eb1aa", "OLD~1.GCO 4 0x210000",
+                "End file list"]
+    finally:
+        monkeypatch.undo()
+        time.tzset()
 
 
 async def test_m29_ends_the_upload_without_an_ok(autojump_clock, tmp_path: Path):

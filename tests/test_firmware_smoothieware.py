@@ -333,6 +333,21 @@ async def test_the_card_lists_lower_case_names_and_prints_a_file(autojump_clock,
         assert await port.ask("ls -s /sd") == b"folder/\r\n"
 
 
+async def test_a_broken_link_or_a_link_loop_on_the_card_is_a_file_not_there(
+        autojump_clock, tmp_path):
+    card = tmp_path / "sd"
+    card.mkdir()
+    (card / "part.gcode").write_text("G28\n")
+    (card / "gone.gcode").symlink_to(card / "nowhere.gcode")
+    (card / "loop.gcode").symlink_to(card / "loop.gcode")
+    async with smoothie(card) as (port, _):
+        assert await port.ask("ls -s /sd") == b"part.gcode 4\r\n"
+        assert await port.ask("M20") == b"Begin file list\r\npart.gcode\r\nEnd file list\r\nok\n"
+        for name in ("gone.gcode", "loop.gcode"):
+            assert await port.ask(f"M23 {name}") == f"file.open failed: /sd/{name}\r\nok\n".encode()
+            assert await port.ask(f"M30 {name}") == f"Could not delete /sd/{name} \r\nok\n".encode()
+
+
 async def test_m28_writes_the_lines_that_follow_to_the_card(autojump_clock, tmp_path):
     card = tmp_path / "sd"
     card.mkdir()

@@ -692,17 +692,17 @@ def cancel_print(printer, command: Command, now: float):
 def _files(printer, subdirectories: bool = False) -> list[tuple[str, int, Path]]:
     """get_file_list(): the top level's files (not hidden, any name) sorted case-blind; with
     subdirectories, every G-code file below, by its path."""
-    root = printer.sd.root
-    if root is None or not root.is_dir():
+    sd = printer.sd
+    entries = sd.listing()
+    if entries is None:
         raise _Refused(state("file_list_failed"))
     if subdirectories:
-        found = [(str(path.relative_to(root)), path.stat().st_size, path)
-                 for path in root.rglob("*")
-                 if path.is_file() and path.name[path.name.rfind(".") + 1:] in SD_EXTENSIONS]
+        found = [(relative, entry.size, entry.path) for relative, entry in sd.files_below()
+                 if entry.name[entry.name.rfind(".") + 1:] in SD_EXTENSIONS]
         return sorted(found, key=lambda entry: entry[0].lower())
-    names = sorted((path.name for path in root.iterdir()), key=str.lower)
-    return [(name, (root / name).stat().st_size, root / name) for name in names
-            if not name.startswith(".") and (root / name).is_file()]
+    return [(entry.name, entry.size, entry.path)
+            for entry in sorted(entries, key=lambda entry: entry.name.lower())
+            if not entry.name.startswith(".") and entry.is_file]
 
 
 def _finished(printer) -> bool:
@@ -743,9 +743,8 @@ def _load(printer, command: Command, name: str, subdirectories: bool = False) ->
     if found is None:
         return reply(state("open_failed", name=name))
     _, _, path = found
-    try:
-        data = path.read_bytes()
-    except OSError:
+    data = printer.sd.read(path)
+    if data is None:
         return reply(state("open_failed", name=name))
     printer.sd.selected = OpenFile(path, name, data)
     printer.sd.printing = False

@@ -13,14 +13,13 @@ progress, M72's state, the pause, the mesh, the print timer) starts afresh at ea
 import math
 import re
 import struct
-import time
 from dataclasses import dataclass, field
 
 from fake_marlin.emulator.printer import motion
 from fake_marlin.emulator.printer.failures import HEATER_FAULT, thermal_error
 from fake_marlin.emulator.printer.gcode import Command, parse
 from fake_marlin.emulator.printer.heating import WATCH_TEMP_INCREASE, WATCH_TEMP_PERIOD
-from fake_marlin.emulator.printer.sdcard import OpenFile
+from fake_marlin.emulator.printer.sdcard import OpenFile, fat_stamp
 from fake_marlin.emulator.printer.statements import Statement, state
 from fake_marlin.emulator.printer.steps import Reply, Report, Sleep, reply
 
@@ -734,10 +733,9 @@ def _gcode(short_path: str) -> bool:
     return bool(dot) and extension[:1] == "G" and extension[1:2] != "~"
 
 
-def _fat_stamp(path) -> str:
-    stamp = time.localtime(path.stat().st_mtime)
-    date = ((stamp.tm_year - 1980) << 9) | (stamp.tm_mon << 5) | stamp.tm_mday
-    clock = (stamp.tm_hour << 11) | (stamp.tm_min << 5) | (stamp.tm_sec // 2)
+def _fat_stamp(mtime: float) -> str:
+    """The directory entry's date and time, as lsDive() prints them (in UTC: sdcard.fat_stamp)."""
+    date, clock = fat_stamp(mtime)
     value = (date << 16) | clock
     return f"{value:#x}" if value else "0"  # printf's %#lx
 
@@ -768,8 +766,11 @@ def list_files(printer, command: Command, now: float):
                 lines.append(state("dir_enter", path="/" + "".join(s + "/" for s, _ in current),
                                    long=current[-1][1]))
         prefix = "/" + "".join(s + "/" for s in short_dirs) if short_dirs else ""
+        info = printer.sd.stat(path)
+        if info is None:  # gone since the listing
+            continue
         lines.append(state(key, path=prefix + short.rsplit("/", 1)[-1],
-                           size=path.stat().st_size, stamp=_fat_stamp(path),
+                           size=info.size, stamp=_fat_stamp(info.mtime),
                            long=long.rsplit("/", 1)[-1]))
     if with_long:
         lines.extend(state("dir_exit") for _ in current)
@@ -799,7 +800,10 @@ def select_file(printer, command: Command, now: float):
     if found is None or not _gcode(found[0]):
         return reply(*lines, state("open_failed", name=name.strip().rsplit("/", 1)[-1]))
     short, long, path = found
-    sd.selected = OpenFile(path, short.rsplit("/", 1)[-1], path.read_bytes())
+    data = sd.read(path)
+    if data is None:
+        return reply(*lines, state("open_failed", name=name.strip().rsplit("/", 1)[-1]))
+    sd.selected = OpenFile(path, short.rsplit("/", 1)[-1], data)
     shown = "/" + "".join(d + "/" for d in short.split("/")[:-1]) + long.rsplit("/", 1)[-1]
     return reply(*lines, state("file_opened", name=shown, size=len(sd.selected.data), long=long),
                  state("file_selected"), state("lcd_status_changed"))

@@ -597,9 +597,7 @@ def _card_path(printer, name: str) -> Path | None:
         if not parts or parts[0] != "gcodes":
             return None
         name = "/".join(parts[1:])
-    path = (root / name).resolve()
-    base = root.resolve()
-    return path if path == base or base in path.parents else None
+    return printer.sd.inside(root / name, root_too=True)
 
 
 def _print_status(printer) -> str:
@@ -619,15 +617,14 @@ def list_files(printer, command: Command, now: float):
     first = int(float(given["R"].value)) if "R" in given and given["R"].value else 0
     asked = given["P"].value if "P" in given else GCODE_DIR
     directory = _card_path(printer, asked) if printer.sd.mounted else None
-    entries = sorted(directory.iterdir(), key=lambda p: p.name) if (
-        directory is not None and directory.is_dir()) else None
+    entries = printer.sd.listing(directory) if directory is not None else None
     if kind == 2:
         head = {"dir": asked, "first": first}
         if not printer.sd.mounted:
             return _json_reply(to_json({**head, "files": [], "err": 1}) + "\n")
         if entries is None:
             return _json_reply(to_json({**head, "files": [], "err": 2}) + "\n")
-        names = [("*" if entry.is_dir() else "") + entry.name for entry in entries
+        names = [("*" if entry.is_dir else "") + entry.name for entry in entries
                  if not entry.name.startswith(".")][first:]
         return _json_reply(to_json({**head, "files": names, "next": 0, "err": 0}) + "\n")
     if kind == 3:
@@ -638,10 +635,9 @@ def list_files(printer, command: Command, now: float):
             return _json_reply(to_json({**head, "files": [], "err": 2}) + "\n")
         files = []
         for entry in [entry for entry in entries if not entry.name.startswith(".")][first:]:
-            info = entry.stat()
-            files.append({"type": "d" if entry.is_dir() else "f", "name": entry.name,
-                          "size": 0 if entry.is_dir() else info.st_size,
-                          "date": _iso_time(info.st_mtime)})
+            files.append({"type": "d" if entry.is_dir else "f", "name": entry.name,
+                          "size": 0 if entry.is_dir else entry.size,
+                          "date": _iso_time(entry.mtime)})
         return _json_reply(to_json({**head, "files": files, "next": 0}) + "\n")
     # Marlin mode: each name on its line between Begin and End, NONE for none.
     lines = [state("file_list_begin")]
@@ -654,12 +650,15 @@ def list_files(printer, command: Command, now: float):
 
 
 def _iso_time(stamp: float) -> str:
-    return time.strftime("%Y-%m-%dT%H:%M:%S", time.gmtime(stamp))
+    try:
+        return time.strftime("%Y-%m-%dT%H:%M:%S", time.gmtime(stamp))
+    except (OverflowError, OSError, ValueError):  # beyond what the C library's time_t holds
+        return time.strftime("%Y-%m-%dT%H:%M:%S", time.gmtime(0))
 
 
 def mount(printer, command: Command, now: float):
     """M21: mounts the card again (MassStorage.cpp:1118-1210)."""
-    if printer.sd.root is None or not printer.sd.root.is_dir():
+    if not printer.sd.inserted():
         return reply(state("no_card", code=command.code))
     printer.sd.reset()
     return reply(state("card_mounted", type="SDHC", slot=0, capacity=31.91, unit="Gb"))
@@ -679,9 +678,11 @@ def select_file(printer, command: Command, now: float):
         return reply(state("already_printing", code=command.code))
     name = _unprecedented(command)
     path = _card_path(printer, name) if printer.sd.mounted and name else None
-    if path is None or not path.is_file():
+    entry = printer.sd.stat(path)
+    data = printer.sd.read(entry.path) if entry is not None and entry.is_file else None
+    if path is None or data is None:
         return reply(state("file_not_found", code=command.code, name=name))
-    printer.sd.selected = OpenFile(path, name, path.read_bytes())
+    printer.sd.selected = OpenFile(path, name, data)
     printer.sd.printing = False
     rrf.paused = False
     rrf.print_name = name
@@ -742,12 +743,7 @@ def begin_write(printer, command: Command, now: float):
     file unanswered (StringParser.cpp:1774-1810)."""
     name = _unprecedented(command)
     path = _card_path(printer, name) if printer.sd.mounted and name else None
-    if path is None:
-        return Reply((state("cannot_write_file", name=name),), effect="no_ok")
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        path.write_bytes(b"")
-    except OSError:
+    if path is None or not printer.sd.create(path, make_folders=True):
         return Reply((state("cannot_write_file", name=name),), effect="no_ok")
     printer.sd.saving = path
     printer.sd.line_end = "\n"  # StringParser::WriteToFile: the line, then '\n'
@@ -765,12 +761,12 @@ def end_write(printer, command: Command, now: float):
 def delete_file(printer, command: Command, now: float):
     """M30 <name>: `ok`, or `Error: M30: delete failed`."""
     path = _card_path(printer, _unprecedented(command)) if printer.sd.mounted else None
-    if path is None or not path.is_file():
+    entry = printer.sd.stat(path)
+    if path is None or entry is None or not entry.is_file or not printer.sd.delete(path):
         return reply(state("delete_failed", code=command.code))
     if printer.sd.selected is not None and printer.sd.selected.path == path:
         printer.sd.selected = None
         printer.sd.printing = False
-    path.unlink()
     return reply()
 
 
@@ -784,12 +780,15 @@ def file_info(printer, command: Command, now: float):
         path, shown = selected.path, rrf_state(printer).print_name
     else:
         found = _card_path(printer, name) if printer.sd.mounted else None
-        if found is None or not found.is_file():
+        entry = printer.sd.stat(found)
+        if found is None or entry is None or not entry.is_file:
             return _json_reply(to_json({"err": 1, "fileName": name}))
         path, shown = found, name
-    data = path.read_bytes()
+    entry, data = printer.sd.stat(path), printer.sd.read(path)
+    if entry is None or data is None:  # the file printing is gone from the card
+        return _json_reply(to_json({"err": 1, "fileName": shown}))
     info: dict[str, object] = {"err": 0, "fileName": shown, "size": len(data),
-                               "lastModified": _iso_time(path.stat().st_mtime)}
+                               "lastModified": _iso_time(entry.mtime)}
     info.update(_scan_gcode(data))
     if not name:
         started = rrf_state(printer).print_started

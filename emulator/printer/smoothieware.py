@@ -22,7 +22,7 @@ from typing import cast
 
 from fake_marlin.emulator.printer import heating, motion
 from fake_marlin.emulator.printer.gcode import Command, parse
-from fake_marlin.emulator.printer.sdcard import OpenFile
+from fake_marlin.emulator.printer.sdcard import CardEntry, OpenFile, SdCard
 from fake_marlin.emulator.printer.statements import Heat, Statement, state
 from fake_marlin.emulator.printer.steps import Reply, Report, Sleep, reply
 
@@ -242,12 +242,12 @@ def _ls(printer, args: str) -> list[Statement]:
             return [state("dir_entry_folder", name="sd")]  # the root holds the card's mount
         return [state("dir_failed", name=path if path.startswith("/") else "/" + path)]
     lines = []
-    for entry in _listing(folder):
-        if entry.is_dir():
+    for entry in _listing(printer, folder):
+        if entry.is_dir:
             lines.append(state("dir_entry_folder", name=entry.name.lower()))
         else:
             lines.append(state("dir_entry_sized" if sizes else "dir_entry", name=entry.name.lower(),
-                               size=entry.stat().st_size))
+                               size=entry.size))
     return lines
 
 
@@ -256,31 +256,29 @@ def _card_folder(printer, path: str) -> Path | None:
     parts = [part for part in path.split("/") if part]
     if not parts or parts[0].lower() != "sd" or not printer.sd.mounted or printer.sd.root is None:
         return None
-    found = _find(printer.sd.root, "/".join(parts[1:]))
-    return found if found is not None and found.is_dir() else None
+    found = _find(printer.sd, "/".join(parts[1:]))
+    return found.path if found is not None and found.is_dir else None
 
 
-def _listing(folder: Path) -> list[Path]:
-    return sorted((entry for entry in folder.iterdir() if not entry.name.startswith(".")),
-                  key=lambda entry: entry.name.lower())
+def _listing(printer, folder: Path | None = None) -> list[CardEntry]:
+    """A folder of the card (the card itself by default): not its hidden entries, by name
+    without regard to case."""
+    return sorted((entry for entry in printer.sd.listing(folder) or ()
+                   if not entry.name.startswith(".")), key=lambda entry: entry.name.lower())
 
 
-def _find(root: Path, name: str) -> Path | None:
-    """`name` under `root` as FAT finds it: each part matched without regard to case."""
-    path = root
+def _find(sd: SdCard, name: str) -> CardEntry | None:
+    """`name` on the card as FAT finds it: each part matched without regard to case."""
+    found = sd.stat(sd.root)
     for part in (part for part in name.strip().split("/") if part):
-        if part in (".", ".."):
+        if found is None or part in (".", ".."):
             return None
-        exact = path / part
-        if exact.exists():
-            path = exact
-            continue
-        match = next((entry for entry in path.iterdir() if entry.name.lower() == part.lower()),
-                     None) if path.is_dir() else None
-        if match is None:
-            return None
-        path = match
-    return path
+        exact = sd.stat(found.path / part)
+        if exact is None:
+            exact = next((entry for entry in sd.listing(found.path) or ()
+                          if entry.name.lower() == part.lower()), None)
+        found = exact
+    return found
 
 
 # -- the line rules' realtime characters --------------------------------------------------
@@ -409,11 +407,10 @@ def endstops(printer, command: Command, now: float):
 def list_files(printer, command: Command, now: float):
     """M20: /sd's own entries (not its folders'), lower case, folders with `/`."""
     lines = [state("file_list_begin")]
-    root = printer.sd.root if printer.sd.mounted else None
-    if root is not None:
-        for entry in _listing(root):
-            name = entry.name.lower() + ("/" if entry.is_dir() else "")
-            size = entry.stat().st_size if entry.is_file() else 0
+    if printer.sd.mounted:
+        for entry in _listing(printer):
+            name = entry.name.lower() + ("/" if entry.is_dir else "")
+            size = entry.size if entry.is_file else 0
             lines.append(state("file_entry", short=name, size=size, long=name, stamp=""))
     lines.append(state("file_list_end"))
     return reply(*lines)
@@ -426,9 +423,16 @@ def mount(printer, command: Command, now: float):
 
 
 def _open(printer, name: str) -> Path | None:
-    root = printer.sd.root if printer.sd.mounted else None
-    found = None if root is None else _find(root, name)
-    return found if found is not None and found.is_file() else None
+    found = _find(printer.sd, name) if printer.sd.mounted else None
+    return found.path if found is not None and found.is_file else None
+
+
+def _opened(printer, name: str) -> OpenFile | None:
+    """The file `name` of the card, read to be played (shown as `name`); None if it is not
+    there or cannot be read."""
+    path = _open(printer, name)
+    data = None if path is None else printer.sd.read(path)
+    return None if path is None or data is None else OpenFile(path, name, data)
 
 
 def select_file(printer, command: Command, now: float):
@@ -436,11 +440,9 @@ def select_file(printer, command: Command, now: float):
     name = command.string_argument
     sd = printer.sd
     sd.printing = False
-    sd.selected = None
-    path = _open(printer, name)
-    if path is None:
+    sd.selected = _opened(printer, name)
+    if sd.selected is None:
         return reply(state("open_failed", name=name))
-    sd.selected = OpenFile(path, name, path.read_bytes())
     return reply(state("file_opened", name=name, size=len(sd.selected.data), long=name),
                  state("file_selected"))
 
@@ -502,14 +504,9 @@ def begin_write(printer, command: Command, now: float):
     """M28 name: GcodeDispatch opens /sd/<name> for the lines that follow."""
     name = command.string_argument
     sd = printer.sd
-    path = _find(sd.root, name) if sd.mounted and sd.root is not None else None
-    if path is None and sd.mounted:
-        path = sd.path_on_card(name)
-    if path is None or not sd.mounted:
-        return reply(state("upload_open_failed", name=name))
-    try:
-        path.write_bytes(b"")
-    except OSError:
+    found = _find(sd, name) if sd.mounted else None
+    path = found.path if found is not None else sd.path_on_card(name) if sd.mounted else None
+    if path is None or not sd.create(path):
         return reply(state("upload_open_failed", name=name))
     sd.saving = path
     return reply(state("writing_to_file", name=name))
@@ -521,24 +518,21 @@ def delete_file(printer, command: Command, now: float):
     if not name:
         return reply()
     path = _open(printer, name)
-    if path is None:
+    if path is None or not printer.sd.delete(path):
         return reply(state("deletion_failed", name=name))
     if printer.sd.selected is not None and printer.sd.selected.path == path:
         _abort_sd(printer)
-    path.unlink()
     return reply()
 
 
 def select_and_start(printer, command: Command, now: float):
     """M32 name: select and start; only `ok`."""
     name = command.string_argument
-    path = _open(printer, name)
     sd = printer.sd
     sd.printing = False
-    if path is None:
-        sd.selected = None
+    sd.selected = _opened(printer, name)
+    if sd.selected is None:
         return reply(state("open_failed", name=name))
-    sd.selected = OpenFile(path, name, path.read_bytes())
     sd.printing = True
     smoothie_state(printer).sd_started = now
     return reply()
@@ -552,11 +546,11 @@ def _player(printer, word: str, args: str, now: float):
         if sd.printing or smoothie_state(printer).suspended:
             return _shell(state("currently_printing"))
         card = name[4:] if name.lower().startswith("/sd/") else name
-        path = _open(printer, card)
+        opened = _opened(printer, card)
         shown = name if name.startswith("/") else "/" + name
-        if path is None:
+        if opened is None:
             return _shell(state("play_not_found", name=shown))
-        sd.selected = OpenFile(path, card, path.read_bytes())
+        sd.selected = opened
         sd.printing = True
         smoothie_state(printer).sd_started = now
         return _shell(state("playing", name=shown, size=len(sd.selected.data)))
@@ -684,7 +678,8 @@ def _override_file(printer) -> Path | None:
 
 def _override_exists(printer) -> bool:
     path = _override_file(printer)
-    return path.exists() if path is not None else smoothie_state(printer).override
+    return printer.sd.stat(path) is not None if path is not None else smoothie_state(
+        printer).override
 
 
 def _override_text(printer) -> str:
@@ -701,11 +696,8 @@ def store_settings(printer, command: Command, now: float):
     path = _override_file(printer)
     own = smoothie_state(printer)
     own.override_text = _override_text(printer)
-    if path is not None:
-        try:
-            path.write_text(own.override_text, encoding="ascii")
-        except OSError:
-            pass  # FileStream fails quietly: it says it stored them all the same
+    if path is not None:  # FileStream fails quietly: it says it stored them all the same
+        printer.sd.create(path, own.override_text.encode("ascii"))
     own.override = True
     return reply(state("settings_stored", size=0, crc=0))
 
@@ -715,10 +707,11 @@ def load_settings(printer, command: Command, now: float):
     if not _override_exists(printer):
         return reply(state("override_missing"))
     path = _override_file(printer)
-    try:
-        text = (path.read_text(encoding="ascii", errors="replace") if path is not None
-                else smoothie_state(printer).override_text)
-    except OSError:
+    if path is None:
+        text = smoothie_state(printer).override_text
+    elif (data := printer.sd.read(path)) is not None:
+        text = data.decode("ascii", "replace")
+    else:
         return reply(state("override_missing"))
     lines = [state("override_loading")]
     for line in text.splitlines():
@@ -734,8 +727,8 @@ def load_settings(printer, command: Command, now: float):
 def delete_settings(printer, command: Command, now: float):
     """M502: the override file deleted (the settings stay until a reboot)."""
     path = _override_file(printer)
-    if path is not None and path.exists():
-        path.unlink()
+    if path is not None:
+        printer.sd.delete(path)
     smoothie_state(printer).override = False
     return reply(state("override_deleted"))
 
