@@ -86,6 +86,37 @@ async def test_unknown_codes_warn_and_other_lines_are_bad_commands(autojump_cloc
             b"Error:  at column 7: M118: expected a string expression\nok\n")
 
 
+async def test_a_number_that_is_none_is_stringparsers_error_and_one_too_large_its_limit(
+        autojump_clock):
+    async with duet() as (wire, _):
+        # StrToI32 and SafeStrtof find no number: GCodeException's message, column and code.
+        assert await wire.exchange("M20 Sabc") == (
+            b"Error:  at column 6: M20: expected number after 'S'\nok\n")
+        assert await wire.exchange('M291 P"x" Tnan') == (
+            b"Error:  at column 12: M291: expected number after 'T'\nok\n")
+        assert await wire.exchange("M555 Pinf") == (
+            b"Error:  at column 7: M555: expected number after 'P'\nok\n")
+        assert await wire.exchange("M26 S-1") == (  # GetUIValue: no sign
+            b"Error:  at column 6: M26: expected number after 'S'\nok\n")
+        # An integer is read up to what is not a digit: S1e999 is S1 (Marlin's list).
+        assert await wire.exchange("M20 S1e999") == await wire.exchange("M20")
+        assert await wire.exchange("M555 P1e999") == b"ok\n"
+        assert await wire.exchange("M555") == b"Output mode: RepRapFirmware\nok\n"
+        # Too large for 32 bits: the type's limit (and M555 the last compatibility).
+        assert await wire.exchange("M555 P" + "9" * 40) == b"ok\n"
+        assert await wire.exchange("M555") == b"Output mode: NanoDLP\nok\n"
+        assert await wire.exchange('M291 P"x" S0 T1e999') == b"x\nok\n"  # a float: infinite
+        assert await wire.exchange("M562 P" + "9" * 40) == b"ok\n"
+        assert await wire.exchange("M20 S2 R" + "9" * 40) == (
+            b'{"dir":"0:/gcodes/","first":4294967295,"files":[],"next":0,"err":0}\n\nok\n')
+        assert (await wire.exchange("M408 S" + "9" * 40)).endswith(b"ok\n")
+        assert await wire.exchange("M104 T" + "9" * 40 + " S200") == (
+            b"Error: M104: Invalid tool number\nok\n")
+        assert await wire.exchange("M104 Tx S200") == (
+            b"Error:  at column 7: M104: expected number after 'T'\nok\n")
+        assert await wire.exchange("M105") == f"ok {COLD}\n".encode()
+
+
 async def test_empty_lines_and_comments_get_no_reply(autojump_clock):
     async with duet() as (wire, _):
         for line in ("", "   ", "; a comment", "  ; indented"):

@@ -202,6 +202,77 @@ def params(command: Command) -> dict[str, Param]:
     return found
 
 
+class _BadParameter(Exception):
+    """A parameter's value that StringParser refuses: the command's reply is the error."""
+
+    def __init__(self, statement: Statement) -> None:
+        super().__init__(statement.key)
+        self.statement = statement
+
+
+def _refusing(handler):
+    """`handler`, with a _BadParameter as its reply (`Error: ...`, then `ok`)."""
+
+    def run(printer, command: Command, now: float):
+        try:
+            return handler(printer, command, now)
+        except _BadParameter as bad:
+            return reply(bad.statement)
+
+    run.__doc__ = handler.__doc__
+    return run
+
+
+_INT32_MIN, _INT32_MAX, _UINT32_MAX = -(2 ** 31), 2 ** 31 - 1, 2 ** 32 - 1
+# NumericConverter::Accumulate (RRFLibraries): spaces and tabs, a sign, digits; a float's
+# fraction and exponent (an E needs digits after it, or there is no number at all).
+_DIGITS = re.compile(r"[ \t]*([+-]?)(\d+)")
+_FLOAT = re.compile(r"[ \t]*[+-]?(?:\d+\.?\d*|\.\d+)(?:[eE](?:[+-]?\d+|(?P<bad>)))?")
+
+
+def _value_text(command: Command, found: Param) -> str:
+    """What follows the parameter's letter, as StringParser reads the number from there."""
+    return command.text[found.column - 1:]
+
+
+def _expected_number(command: Command, letter: str, found: Param) -> _BadParameter:
+    # GCodeException::GetMessage: ` at column <n>: M20: expected number after 'S'` (the
+    # column is where the value should start, 1-based), after the reply's `Error: `.
+    text = f" at column {found.column}: {command.code}: expected number after '{letter}'"
+    return _BadParameter(state("firmware_error", text=text))
+
+
+def _integer(command: Command, given: dict[str, Param], letter: str, default: int,
+             unsigned: bool = False) -> int:
+    """GetIValue() (GetUIValue() if `unsigned`) of the parameter, `default` without it (or
+    with no value, as this model has always read it): StrToI32/StrToU32, digits up to the
+    first that is not one (`S2.5` and `S1e9` are 2 and 1), a value too large for 32 bits the
+    type's limit; no digits (`Sabc`, `Snan`, a sign for an unsigned one) the parse error."""
+    found = given.get(letter)
+    if found is None or not found.value:
+        return default
+    match = _DIGITS.match(_value_text(command, found))
+    if match is None or (unsigned and match[1] == "-"):
+        raise _expected_number(command, letter, found)
+    value = int(match[2]) * (-1 if match[1] == "-" else 1)
+    if unsigned:
+        return min(value, _UINT32_MAX)
+    return max(_INT32_MIN, min(_INT32_MAX, value))
+
+
+def _float(command: Command, given: dict[str, Param], letter: str, default: float) -> float:
+    """GetFValue() of the parameter, `default` without it (or with no value): a number as
+    SafeStrtof reads it (a float too large is infinite); none (`Tabc`, `Tnan`, `T1e`) is the
+    parse error."""
+    found = given.get(letter)
+    if found is None or not found.value:
+        return default
+    match = _FLOAT.match(_value_text(command, found))
+    if match is None or match["bad"] is not None:
+        raise _expected_number(command, letter, found)
+    return float(match[0].strip(" \t"))
+
+
 def _unprecedented(command: Command) -> str:
     """GetUnprecedentedString(): the rest of the line, quotes taken off (M23, M30, M36)."""
     text = command.string_argument.strip()
@@ -273,9 +344,21 @@ def _set_target(printer, heater, target: float, now: float) -> None:
         heater.set_target(now, target)
 
 
+def _target_tool(printer, command: Command) -> int | Reply:
+    """The tool a T word names (TryGetIValue), the selected one without it; or the refusal
+    (`Invalid tool number`, or T's number that cannot be read)."""
+    try:
+        tool = _integer(command, params(command), "T", printer.active_tool)
+    except _BadParameter as bad:
+        return reply(bad.statement)
+    if 0 <= tool < len(printer.hotends):
+        return tool
+    return reply(state("invalid_extruder", code=command.code, tool=tool))
+
+
 def set_hotend(printer, command: Command, now: float):
     """M104 S/R [T]: the tool's active and standby temperature; no reply."""
-    tool = heating.target_tool(printer, command)
+    tool = _target_tool(printer, command)
     if isinstance(tool, Reply):
         return tool
     if command.has("S") or command.has("R"):
@@ -334,7 +417,7 @@ def _expected_rise(heater, temperature: float) -> float:
 
 def wait_hotend(printer, command: Command, now: float):
     """M109 S|R [T]: set the tool's temperature, wait for its moves, then for the heater."""
-    tool = heating.target_tool(printer, command)
+    tool = _target_tool(printer, command)
     if isinstance(tool, Reply):
         return tool
     if not (command.has("S") or command.has("R")):
@@ -394,11 +477,13 @@ def heater_fault(printer, reason: str, heater_name: str, now: float) -> tuple[St
                        expected=_expected_rise(heater, temperature), measured=0.0)
 
 
+@_refusing
 def clear_fault(printer, command: Command, now: float):
     """M562 [P<heater>]: the fault cleared; the heater stays off until it is set again."""
     rrf = rrf_state(printer, now)
-    if command.has("P"):
-        rrf.faults.discard(int(command.value("P", 0.0)))
+    given = params(command)
+    if "P" in given:
+        rrf.faults.discard(_integer(command, given, "P", 0, unsigned=True))
     else:
         rrf.faults.clear()
     return reply()
@@ -463,15 +548,15 @@ def serial_print(printer, command: Command, now: float):
     return reply(state("text_reply", text=found.value))
 
 
+@_refusing
 def message_box(printer, command: Command, now: float):
     """M291 P"msg" [R"title"] [S<mode>] [T<timeout>], from USB: printed, never blocking
     (RepRap.cpp:2745-2780, GCodes7.cpp:14-113); M292 then finds no box and answers `ok`."""
     given = params(command)
     if "P" not in given:
         return reply(state("missing_parameter", code=command.code, letter="P"))
-    mode = int(float(given["S"].value)) if "S" in given and given["S"].value else 1
-    timeout = float(given["T"].value) if "T" in given and given["T"].value else (
-        10.0 if mode <= 1 else 0.0)
+    mode = _integer(command, given, "S", 1, unsigned=True)
+    timeout = _float(command, given, "T", 10.0 if mode <= 1 else 0.0)
     if mode == 0 and timeout <= 0:
         return reply(state("message_not_dismissable", code=command.code))
     lines = []
@@ -501,16 +586,15 @@ def network(printer, command: Command, now: float):
                        actual="192.168.1.50"))
 
 
+@_refusing
 def output_mode(printer, command: Command, now: float):
     """M555 [P<n>]: the channel's compatibility (GCodes2.cpp:3540-3550). It is kept and
     reported; the emulated framing stays Marlin's (docs/firmwares.md)."""
     rrf = rrf_state(printer, now)
     given = params(command)
     if "P" in given:
-        try:
-            rrf.mode = max(0, min(len(COMPATIBILITY) - 1, int(float(given["P"].value))))
-        except ValueError:
-            pass
+        if given["P"].value:  # (P alone: nothing, as the model has always taken it)
+            rrf.mode = max(0, min(len(COMPATIBILITY) - 1, _integer(command, given, "P", 0)))
         return reply()
     return reply(state("output_mode", mode=COMPATIBILITY[rrf.mode]))
 
@@ -610,11 +694,12 @@ def _print_status(printer) -> str:
     return "idle"
 
 
+@_refusing
 def list_files(printer, command: Command, now: float):
     """M20 [S2|S3] [P"dir"] [R<first>] (GCodes2.cpp:947-1020, RepRap.cpp:1855-2031)."""
     given = params(command)
-    kind = int(float(given["S"].value)) if "S" in given and given["S"].value else 0
-    first = int(float(given["R"].value)) if "R" in given and given["R"].value else 0
+    kind = _integer(command, given, "S", 0)
+    first = _integer(command, given, "R", 0, unsigned=True)
     asked = given["P"].value if "P" in given else GCODE_DIR
     directory = _card_path(printer, asked) if printer.sd.mounted else None
     entries = printer.sd.listing(directory) if directory is not None else None
@@ -720,12 +805,14 @@ def pause_print(printer, command: Command, now: float):
     return reply(state("paused_at", x=x, y=y, z=z))
 
 
+@_refusing
 def set_file_position(printer, command: Command, now: float):
     """M26 S<byte>: S is required."""
     if not command.has("S"):
         return reply(state("missing_parameter", code=command.code, letter="S"))
+    position = _integer(command, params(command), "S", 0, unsigned=True)
     if printer.sd.selected is not None:
-        printer.sd.selected.position = max(0, int(command.value("S", 0.0)))
+        printer.sd.selected.position = position
     return reply()
 
 
@@ -940,8 +1027,9 @@ def config_response(printer) -> dict[str, object]:
         "maxFeedrates": [Fixed(rate, 2) for rate in feedrates]}
 
 
+@_refusing
 def status(printer, command: Command, now: float):
-    kind = int(command.value("S", 0.0))
+    kind = _integer(command, params(command), "S", 0, unsigned=True)
     text = status_response(printer, kind, now)
     if kind == 5:
         text = text.replace(',"sysdir":', ', "sysdir":', 1)
