@@ -236,6 +236,17 @@ async def test_m999_resets_a_running_printer_after_a_second(autojump_clock):
             "result"] is False
 
 
+async def test_m999_as_the_first_command_is_a_software_reset_for_the_next_m122(autojump_clock):
+    async with duet() as (wire, printer):
+        boots = printer.server.boots
+        await wire.send("M999")  # before anything else of RRF's: the power-up boot is still this
+        while printer.server.boots == boots:
+            await trio.sleep(0.01)
+        lines = await wire.command("M122")
+        assert lines[5].endswith("cause: software")
+        assert lines[6].startswith("Last software reset at ")
+
+
 async def test_a_heater_fault_is_an_alert_not_a_halt(autojump_clock):
     async with duet() as (wire, printer):
         await wire.command("M104 S200")

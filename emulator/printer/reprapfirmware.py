@@ -111,19 +111,26 @@ class RrfState:
     print_name: str = ""  # the file as M23 named it
 
 
+# The boot that powered the board up: the first in which the firmware did anything. (The model
+# resets once when it is made and again as the server powers it up: the boot count does not
+# say which boot is the power-up one, the first line the host sends does.) Every line the host
+# sends is read by read_line() first, M999 included: a software reset always comes after it.
+_FIRST_BOOT = "reprapfirmware.first_boot"
+
+
 def rrf_state(printer, now: float = 0.0) -> RrfState:
     current = printer.extensions.get("reprapfirmware")
     if not isinstance(current, RrfState) or current.boot != printer.boots:
         current = RrfState(boot=printer.boots, started=now)
         printer.extensions["reprapfirmware"] = current
-        printer.extensions.setdefault("reprapfirmware.first_boot", printer.boots)
+        printer.extensions.setdefault(_FIRST_BOOT, printer.boots)
     return current
 
 
 def powered_up(printer) -> bool:
     """Whether this boot is the power-up one (else M999, a watchdog: a software reset)."""
     rrf_state(printer)
-    return printer.extensions["reprapfirmware.first_boot"] == printer.boots
+    return printer.extensions[_FIRST_BOOT] == printer.boots
 
 
 def machine_name(printer) -> str:
@@ -512,6 +519,7 @@ _COMMAND = re.compile(r"[GMT]\d*$|[GM]\d+\.\d+$")
 def read_line(printer, command: Command, now: float):
     """A line that is no G, M or T code (GCodes2.cpp:149-152): `Error: Bad command: X10`; an
     `echo` meta command says its expression; None for the code's handler."""
+    printer.extensions.setdefault(_FIRST_BOOT, printer.boots)  # this boot runs: see _FIRST_BOOT
     if _COMMAND.match(command.code) and command.code not in ("G", "M"):
         return None
     if command.code == "ECHO":
