@@ -247,6 +247,13 @@ async def test_m999_as_the_first_command_is_a_software_reset_for_the_next_m122(a
         assert lines[6].startswith("Last software reset at ")
 
 
+async def test_m122s_board_id_is_the_machine_names_in_every_process(autojump_clock):
+    # (str's hash() is salted per process: the ID was drawn from it.)
+    async with duet() as (wire, _):
+        lines = await wire.command("M122")
+        assert lines[2] == "Board ID: 19220-30C91-B9864-BDCC3-2DEE6-596F7"
+
+
 async def test_a_heater_fault_is_an_alert_not_a_halt(autojump_clock):
     async with duet() as (wire, printer):
         await wire.command("M104 S200")

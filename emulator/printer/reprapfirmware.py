@@ -14,6 +14,7 @@ for: one tool T0 (heater 1, selected at the end of config.g), a heated bed (heat
 allowed before homing (M564 H0) and cold extrusion allowed (M302 P1), as docs/firmwares.md says.
 """
 
+import hashlib
 import json
 import re
 import time
@@ -611,7 +612,10 @@ def diagnostics(printer, command: Command, now: float):
     """M122: the header of RepRap::Diagnostics and the start of its Platform section."""
     rrf = rrf_state(printer, now)
     up = int(max(0.0, now - rrf.started))
-    digest = abs(hash(printer.config.machine_name)) if printer.config.machine_name else 0
+    # The board's unique ID, drawn from the machine name: the same in every process (str's
+    # hash() is not: PYTHONHASHSEED salts it).
+    name = printer.config.machine_name
+    digest = int.from_bytes(hashlib.sha256(name.encode()).digest()[:8], "big") >> 1 if name else 0
     board = "-".join(f"{(digest >> (5 * i)) & 0xFFFFF:05X}" for i in range(6))
     software = ("Last software reset details not available" if powered_up(printer) else
                 "Last software reset at 2024-09-18 12:00, reason: User, Gcodes spinning, "
