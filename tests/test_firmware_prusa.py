@@ -238,6 +238,28 @@ async def test_a_print_as_prusalink_sends_it(autojump_clock):
         assert running.journal[-7:] == [*job, "M73 Q42 S0 C-1 P42 R0 D-1", "M77"]
 
 
+async def test_numbers_too_large_or_none_are_what_the_firmware_makes_of_them(autojump_clock):
+    async with memory_printer(firmware="prusa") as running:
+        terminal = await booted(running)
+        # code_value() is strtod's (1e999 and nan are numbers), cast to an integer as avr-gcc
+        # casts: 0 for what 32 bits cannot hold; NaN is not <= 0 (C and D), so it is cast too.
+        assert only(await terminal.command("M73 S1e999 R1e999 C1e999 Dnan")) == [
+            "NORMAL MODE: Percent done: -1; print time remaining in mins: 0; Change in mins: 0",
+            "SILENT MODE: Percent done: -1; print time remaining in mins: 0; Change in mins: 0"]
+        # code_value_uint8() is strtol's: the digits up to the first that is not one.
+        assert only(await terminal.command("M73 P1e2 Q1e999"))[0].startswith(
+            "NORMAL MODE: Percent done: 1;")
+        assert await terminal.command("M72 S1e999") == ["ok"]
+        assert only(await terminal.command("M72")) == ["PrinterState: 1"]
+        assert await terminal.command("M220 S1e999") == ["ok"]  # code_value_short(): 1
+        assert only(await terminal.command("M220")) == ["1%"]
+        assert only(await terminal.command("D3 A1e999 C2"))[1].startswith("000000  ")
+        assert await terminal.command("M155 S1e999") == ["ok"]  # a period of 1 s
+        heard = await terminal.quiet_for(3.5)  # at once, then each second
+        assert len(heard) == 4 and all(TEMPERATURE_REGEX.match(line) for line in heard)
+        assert await terminal.command("M155 S0 C" + "9" * 400) == ["ok"]  # LONG_MAX: 0xff
+
+
 async def test_line_errors_ask_for_the_line_again_and_a_repeat_is_one(autojump_clock):
     async with memory_printer(firmware="prusa") as running:
         terminal = await booted(running)

@@ -314,14 +314,42 @@ def _int16(value: int) -> int:
     return value - 0x10000 if value & 0x8000 else value
 
 
+# avr-libc's strtod(): a decimal number with its exponent, or INF, INFINITY, NAN.
+_STRTOD = re.compile(r"\s*([-+]?(?:(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?|inf(?:inity)?|nan))",
+                     re.IGNORECASE)
+_STRTOL = re.compile(r"\s*([-+]?\d+)")
+_LONG_MIN, _LONG_MAX = -(2 ** 31), 2 ** 31 - 1  # a long on the AVR: 32 bits
+
+
 def _number(text: str, letter: str) -> float | None:
     """code_seen(letter) then code_value(): the first `letter` anywhere in the command, and
-    the number after it (strtod: 0 where there is none)."""
+    the number after it (strtod: 0 where there is none; `1e999`, `inf` and `nan` are what
+    they say: the callers that want an integer take it through _to_integer())."""
     at = text.find(letter)
     if at < 0:
         return None
-    match = re.match(r"\s*([-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?)", text[at + 1:])
+    match = _STRTOD.match(text, at + 1)
     return float(match[1]) if match else 0.0
+
+
+def _long(text: str, letter: str) -> int | None:
+    """code_seen(letter) then code_value_long() (and code_value_uint8() and
+    code_value_short(), which cut it down): strtol, the digits after the letter up to the
+    first that is not one (`S1e999` is 1), 0 where there are none, LONG_MAX or LONG_MIN for a
+    number too large (cmdqueue.h:85-87)."""
+    at = text.find(letter)
+    if at < 0:
+        return None
+    return _strtol(text[at + 1:], 10)
+
+
+def _to_integer(value: float) -> int:
+    """A float code_value() read, cast to an integer as avr-gcc does it (__fixunssfsi, the
+    fraction dropped): NaN, the infinities and what 32 bits cannot hold are 0. The caller keeps
+    the bits its type has."""
+    if not math.isfinite(value) or abs(value) >= 2.0 ** 32:
+        return 0
+    return int(value)
 
 
 def progress(printer, command: Command, now: float):
@@ -333,11 +361,11 @@ def progress(printer, command: Command, now: float):
         if value is None:
             continue
         if letter in "PQ":
-            values[letter] = int(value) & 0xFF  # code_value_uint8()
-        elif letter in "CD":
-            values[letter] = 0xFFFF if value <= 0 else int(value) & 0xFFFF
+            values[letter] = (_long(text, letter) or 0) & 0xFF  # code_value_uint8()
+        elif letter in "CD":  # (NaN is not <= 0: it is cast, to 0)
+            values[letter] = 0xFFFF if value <= 0 else _to_integer(value) & 0xFFFF
         else:
-            values[letter] = int(value) & 0xFFFF
+            values[letter] = _to_integer(value) & 0xFFFF
     return reply(
         state("progress_normal", percent=_int8(values["P"]), remaining=_int16(values["R"]),
               change=_int16(values["C"])),
@@ -349,11 +377,11 @@ def progress(printer, command: Command, now: float):
 def printer_state(printer, command: Command, now: float):
     """M72 [S0|S1]: set NotReady / IsReady; without S, say the state."""
     boot = ram(printer)
-    value = _number(command.text[3:], "S")
+    value = _long(command.text[3:], "S")  # code_value_uint8()
     if value is None:
         return reply(state("printer_state", state=boot.printer_state))
-    if int(value) & 0xFF in (0, 1):
-        boot.printer_state = int(value) & 0xFF
+    if value & 0xFF in (0, 1):
+        boot.printer_state = value & 0xFF
     return reply()
 
 
@@ -399,14 +427,18 @@ _HEX_DIGITS = re.compile(r"\s*([-+]?)(?:0[xX])?([0-9a-fA-F]*)")
 
 
 def _strtol(text: str, base: int) -> int:
+    """strtol(text, base), base 10 or 16 (avr-libc's: LONG_MAX or LONG_MIN for a number
+    too large for its 32 bits)."""
     if base == 16:
         match = _HEX_DIGITS.match(text)
         assert match is not None
         digits = match[2]
         value = int(digits, 16) if digits else 0
-        return -value if match[1] == "-" else value
-    match = re.match(r"\s*([-+]?\d+)", text)
-    return int(match[1]) if match else 0
+        value = -value if match[1] == "-" else value
+    else:
+        found = _STRTOL.match(text)
+        value = int(found[1]) if found else 0
+    return max(_LONG_MIN, min(_LONG_MAX, value))
 
 
 def _parse_hex(text: str, limit: int) -> tuple[bytes, bool]:
@@ -442,7 +474,7 @@ def eeprom_code(printer, command: Command, now: float):
         if text[at + 1:at + 2] == "x":
             start = _strtol(text[at + 2:], 16) & mask
         else:
-            start = int(_number(text, "A") or 0) & mask
+            start = _to_integer(_number(text, "A") or 0.0) & mask  # (int)code_value()
     if (at := text.find("C")) >= 0:
         count = _strtol(text[at + 1:], 10) & mask
     if start > end:
@@ -500,10 +532,10 @@ def auto_report(printer, command: Command, now: float):
     the model and is not sent (docs/firmwares.md)."""
     boot = ram(printer)
     text = command.text[4:]
-    if (period := _number(text, "S")) is not None:
-        boot.report_period = int(period) & 0xFF
-    mask = _number(text, "C")
-    boot.report_mask = 1 if mask is None else int(mask) & 0xFF
+    if (period := _long(text, "S")) is not None:  # code_value_uint8()
+        boot.report_period = period & 0xFF
+    mask = _long(text, "C")
+    boot.report_mask = 1 if mask is None else mask & 0xFF
     reports = printer.auto_reports
     reports.temperature = float(boot.report_period) if boot.report_mask & 1 else 0.0
     reports.position = float(boot.report_period) if boot.report_mask & 4 else 0.0
@@ -517,8 +549,9 @@ def speed_factor(printer, command: Command, now: float):
     seen = False
     if "B" in text:
         boot.feedrate_backup, seen = motion_state.feedrate_percent, True
-    if (value := _number(text, "S")) is not None:
-        motion_state.feedrate_percent, seen = max(1.0, value), True
+    if (value := _long(text, "S")) is not None:  # feedmultiply = code_value_short()
+        # (at least 1%: the model's planner divides by it, where the firmware would crawl)
+        motion_state.feedrate_percent, seen = max(1.0, float(_int16(value & 0xFFFF))), True
     if "R" in text:
         motion_state.feedrate_percent, seen = boot.feedrate_backup, True
     if not seen:
