@@ -245,6 +245,27 @@ async def test_extended_commands_hosts_send(autojump_clock):
         assert await terminal.command("M119") == ["x:open y:open z:open", "ok"]
 
 
+async def test_integers_are_pythons_int_of_the_text_as_klippy_reads_them(autojump_clock):
+    async with klipper() as (terminal, _):
+        # get_int(): MOVE=inf and MOVE=1.5 cannot be parsed (get_float() would take them).
+        assert await terminal.command("SET_GCODE_OFFSET Z=1 MOVE=inf") == [
+            "!! Error on 'SET_GCODE_OFFSET Z=1 MOVE=inf': unable to parse inf", "ok"]
+        assert await terminal.command("SAVE_GCODE_STATE") == ["ok"]
+        assert await terminal.command("RESTORE_GCODE_STATE MOVE=nan") == [
+            "!! Error on 'RESTORE_GCODE_STATE MOVE=nan': unable to parse nan", "ok"]
+        # A traditional command's letter is the text klippy split the line into.
+        assert await terminal.command("M26 S1.5") == [
+            "!! Error on 'M26 S1.5': unable to parse 1.5", "ok"]
+        assert await terminal.command("M26 S-1") == [
+            "!! Error on 'M26 S-1': S must have minimum of 0", "ok"]
+        assert await terminal.command("M26 S" + "9" * 400) == ["ok"]  # Python's int: any size
+        assert await terminal.command("M104 T" + "9" * 400 + " S200") == [
+            "!! Extruder not configured", "ok"]
+        assert await terminal.command("M104 T1e999 S200") == [  # T is `1`, E `999`
+            "!! Extruder not configured", "ok"]
+        assert await terminal.command("M104 T0 S0") == ["ok"]
+
+
 async def test_virtual_sdcard_lists_selects_prints_and_refuses_to_write(tmp_path, autojump_clock):
     async with klipper(tmp_path) as (terminal, printer):
         cube = tmp_path / "gcodes" / "Cube.gcode"

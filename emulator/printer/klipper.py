@@ -14,6 +14,7 @@ names), so those are here too. docs/firmwares.md has the source of each.
 """
 
 import math
+import re
 import shlex
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -190,6 +191,36 @@ def get_float(command: Command, params: dict[str, str], name: str, default=_MISS
     return value
 
 
+def get_int(command: Command, params: dict[str, str], name: str, default=_MISSING,
+            minval: int | None = None):
+    """GCodeCommand.get_int() of an extended command's parameters: Python's int() of the
+    text (`MOVE=1.5` and `MOVE=inf` cannot be parsed)."""
+    text = params.get(name)
+    if text is None:
+        if default is _MISSING:
+            raise _Refused(state("parameter_missing", line=command.text, param=name))
+        return default
+    try:
+        value = int(text)
+    except ValueError:
+        raise _Refused(state("parameter_unparsable", line=command.text, value=text)) from None
+    _check_limits(command, name, value, minval, None, None, None)
+    return value
+
+
+# GCodeDispatch._process_commands: a traditional command's parameters are what follows each
+# run of letters (the line upper case), as text.
+_ARGS = re.compile(r"([A-Z_]+|[A-Z*])")
+
+
+def _integer(command: Command, name: str, default=_MISSING, minval: int | None = None):
+    """get_int() of a traditional G/M code's letter: its text as klippy splits the line
+    (`M26 S1.5` cannot be parsed; a number of any size is one)."""
+    parts = _ARGS.split(command.text.upper())
+    params = {parts[index]: parts[index + 1].strip() for index in range(1, len(parts), 2)}
+    return get_int(command, params, name, default, minval)
+
+
 def _number(command: Command, name: str, default: float, minval: float | None = None,
             maxval: float | None = None, above: float | None = None) -> float:
     """The same for a traditional G/M code's letter (parsed as the model parses numbers)."""
@@ -293,11 +324,9 @@ def _hotend(printer, command: Command):
     """The heater M104/M109 set: T<n> or the active extruder; None for a T<n> that is not
     configured and a target of 0 (nothing to do)."""
     target = command.value("S", 0.0)
-    index = command.value("T")
-    if index is None:
+    tool = _integer(command, "T", None, minval=0)  # PrinterExtruder.cmd_M104
+    if tool is None:
         return printer.hotends[printer.active_tool], target
-    index = _number(command, "T", 0.0, minval=0)
-    tool = int(index)
     if tool >= len(printer.hotends):
         if target <= 0:
             return None, target
@@ -437,9 +466,9 @@ def set_gcode_offset(printer, command: Command, now: float):
         deltas[index] = offset - klipper.homing[index]
         klipper.base[index] += deltas[index]
         klipper.homing[index] = offset
-    move = get_float(command, params, "MOVE", 0.0)
+    move = get_int(command, params, "MOVE", 0)
     get_float(command, params, "MOVE_SPEED", 1.0, above=0.0)
-    if not int(move):
+    if not move:
         for index, delta in enumerate(deltas):
             printer.motion.position[index] -= delta
     return reply()
@@ -470,7 +499,7 @@ def restore_gcode_state(printer, command: Command, now: float):
         saved = klipper.saved.get(name)
         if saved is None:
             raise _Refused(state("unknown_gcode_state", name=name))
-        move = int(get_float(command, params, "MOVE", 0.0))
+        move = get_int(command, params, "MOVE", 0)
         speed = get_float(command, params, "MOVE_SPEED", printer.motion.feedrate / 60.0,
                           above=0.0)
     except _Refused as refused:
@@ -780,9 +809,7 @@ def set_file_position(printer, command: Command, now: float):
     """M26 S<byte>."""
     if printer.sd.printing:
         raise _Refused(state("sd_busy"))
-    if not command.has("S"):
-        raise _Refused(state("parameter_missing", line=command.text, param="S"))
-    position = int(_number(command, "S", 0.0, minval=0))
+    position = _integer(command, "S", minval=0)  # VirtualSD.cmd_M26
     if printer.sd.selected is not None:
         printer.sd.selected.position = position
     return reply()
