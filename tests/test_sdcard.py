@@ -8,6 +8,7 @@ from pathlib import Path
 
 import pytest
 
+from fake_marlin.emulator.printer.model import Printer, PrinterConfig
 from fake_marlin.emulator.printer.sdcard import SdCard, fat_stamp
 from fake_marlin.testing import memory_printer
 from tests.terminal import Terminal
@@ -101,3 +102,14 @@ async def test_marlins_m20_t_is_the_same_in_any_time_zone(autojump_clock, tmp_pa
     finally:
         monkeypatch.undo()
         time.tzset()
+
+
+
+def test_marlins_m26_takes_a_position_too_large_for_a_float_as_strtol_would(tmp_path):
+    # (400 digits pass Marlin's parse as infinity, and int() of it raised OverflowError.)
+    (tmp_path / "cube.gcode").write_text("G28\n")
+    printer = Printer(PrinterConfig(sd_dir=tmp_path))
+    for line in ("M23 cube.gcode", "M26 S" + "9" * 400):
+        with pytest.raises(StopIteration):
+            next(printer.execute(line, 0.0))  # answered at once
+    assert printer.sd.selected is not None and printer.sd.selected.position == 2 ** 31 - 1

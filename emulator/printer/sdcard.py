@@ -282,6 +282,9 @@ class SdCard:
         return state("not_sd_printing")
 
 
+_LONG_MAX = 2 ** 31 - 1
+
+
 def _no_media(printer) -> bool:
     return not printer.sd.mounted
 
@@ -344,8 +347,8 @@ def pause_print(printer, command: Command, now: float):
 
 
 def set_position(printer, command: Command, now: float):
-    if printer.sd.selected is not None:
-        printer.sd.selected.position = max(0, int(command.value("S", 0.0)))
+    if printer.sd.selected is not None:  # setIndex(parser.value_long()): strtol's range
+        printer.sd.selected.position = int(max(0.0, min(command.value("S", 0.0), _LONG_MAX)))
     return reply()
 
 
