@@ -180,3 +180,12 @@ async def test_the_control_channel_switches_quirks_while_a_host_is_connected(aut
         controller.handle({"op": "action", "action": "pause"})
         assert await terminal.read_line() == "//action:pause"
 
+
+
+async def test_numbers_too_long_for_a_long_are_clamped_not_a_crash(autojump_clock):
+    async with marlin(password="1234", locked=True) as (terminal, running):
+        assert await terminal.command("M511 P" + "9" * 400) == ["Incorrect Password", "ok"]
+        assert await terminal.command("M511 P1234") == ["ok"]
+        assert await terminal.command("M106 P" + "9" * 400 + " S100") == ["ok"]  # no such fan
+        assert (await terminal.command("M104 T" + "9" * 400 + " S100"))[0].startswith(
+            "echo:M104 Invalid extruder 2147483647")

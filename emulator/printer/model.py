@@ -295,7 +295,7 @@ class Printer:
             self.heating_cancelled = True
             host_actions.user_continues(self)
         elif command.code == "M876":
-            host_actions.respond(self, int(command.value("S", 0.0)))
+            host_actions.respond(self, heating.whole(command.value("S", 0.0)))
         elif command.code == "M112":
             return self.kill(state("m112_shutdown"), now)
         elif command.code == "M410":
