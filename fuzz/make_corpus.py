@@ -63,6 +63,18 @@ STREAMS: dict[str, dict[str, bytes]] = {
         "probe-and-leave": BYTEWISE + bytes.fromhex("1b0100010e0114" "1b0300020eeec03a")
         + encode_message(4, b"\x11") + lines("M110"),
     },
+    "g2core_receiver": {  # docs/protocols.md section 7: cncjs's start, a job, the controls
+        "cncjs": WHOLE + b"{ej:1}\n{jv:4}\n{qv:1}\n{sv:1}\n{si:200}\n{spe:n}\n"
+        b"{sr:{stat:t,line:t,posx:t}}\n{sys:n}\nN1G1X5F600\nN2G1X10\n",
+        "controls-bytewise": BYTEWISE + b'{"qr":""}\r\n!~%\n\x05\x04\x18N1 G1*99\nG1 X1*5\n',
+        "held": b"\x05\xaaN12G1X5\nG0X1\n{a:.5}\n{toolong:1}\n" + b"x" * 600 + b"\nM30\n",
+    },
+    "host_g2core_parser": {
+        "board": WHOLE + b'{"r":{"fv":0.99,"fb":101.03,"msg":"SYSTEM READY"},"f":[1,0,1]}\n'
+        b'{"r":{"n":1},"f":[1,0,12]}\n{"qr":14}\n{"sr":{"stat":5,"posx":0.01}}\n'
+        b'{"er":{"fb":101.03,"st":207,"msg":"Kill job - Job killed by ^d"}}\n',
+        "noise": BYTEWISE + b'g2core[mm] ok> \n{"r":{},"f":[1,\xff0,8]}\n' + b"[" * 3000 + b"\n",
+    },
     "protocol_detector": {
         "marlin": b"\x80\x01\nN0 M110*125\n",
         "ultimaker": b"\x00\x01" + bytes.fromhex("ffff0003473238c641"),

@@ -21,18 +21,21 @@ from collections.abc import Callable
 
 from fake_marlin.emulator.printer import gcode
 from fake_marlin.emulator.protocols import commstack as cs
+from fake_marlin.emulator.protocols import g2core as g2
 from fake_marlin.emulator.protocols.base import CommandDone, CommandReceived
 from fake_marlin.emulator.protocols import marlin, stk500
 from fake_marlin.emulator.protocols import repetier as rep
 from fake_marlin.emulator.protocols import ultimaker as um
 from fake_marlin.emulator.scenario import definition
 from fake_marlin.emulator.sessions import detect
+from fake_marlin.host.codecs import g2core as host_g2core
 from fake_marlin.host.codecs import lines as host_lines
 from fake_marlin.host.codecs import marlin as host_marlin
 from fake_marlin.host.codecs import repetier as host_repetier
 from fake_marlin.host.codecs import ultimaker as host_um
 from fake_marlin.host.errors import CommandError
 from fake_marlin.wire import commstack as wire_cs
+from fake_marlin.wire import g2core as wire_g2
 from fake_marlin.wire import repetier as wire_rep
 from fake_marlin.wire import ultimaker as wire_um
 from fake_marlin.wire.gcode import canonical, remove_paren_comments, strip_comment
@@ -319,6 +322,48 @@ class _Session:
         self.fed += data
 
 
+def g2core_receiver(data: bytes) -> None:
+    """G2coreProtocol, reading G-code now and then not (a full planner): every event is one it
+    declares, each line's size is at least its own bytes, no data line is lost while reads are
+    held, and each answer the board gives reads back through the host's parser as the same."""
+    choice, chunks = split(data)
+    protocol = g2.G2coreProtocol()
+    events: list[object] = []
+    for index, piece in enumerate(chunks):
+        protocol.reading_gcode = not (choice >> (index % 8)) & 1
+        protocol.receive_data(piece)
+        while (event := protocol.next_event()) is not None:
+            events.append(event)
+    protocol.reading_gcode = True
+    while (event := protocol.next_event()) is not None:
+        events.append(event)
+    assert protocol.waiting_lines == 0
+    for event in events:
+        assert isinstance(event, (CommandReceived, g2.JsonRequest, g2.BadRequest, g2.BadLine,
+                                  g2.SingleCharacter)), event
+        if isinstance(event, (CommandReceived, g2.JsonRequest, g2.BadRequest, g2.BadLine)):
+            assert 1 <= event.size <= g2.RX_BUFFER_SIZE + 2, event
+            status = 0 if isinstance(event, (CommandReceived, g2.JsonRequest)) else event.status
+            answer = protocol.send(g2.Response({"n": 1}, status, event.size))
+            reply = host_g2core.parse_line(answer.rstrip(b"\n"))
+            assert isinstance(reply, host_g2core.Response), (answer, reply)
+            assert (reply.status, reply.length) == (status, event.size)
+
+
+def host_g2core_parser(data: bytes) -> None:
+    """host ReplyReader (g2core): any bytes are events of its four kinds, never an exception;
+    a response, report or banner the board can write reads back as that."""
+    _parse_all(host_g2core.ReplyReader(), split(data)[1], host_g2core.Event)
+    written = {
+        wire_g2.response({"qr": 15}, 0, 8): host_g2core.Response,
+        wire_g2.report("sr", {"stat": 5, "posx": wire_g2.Number(1.5, 3)}): host_g2core.Report,
+        wire_g2.response({"fb": wire_g2.Number(101.03, 2), "msg": "SYSTEM READY"}, 0, 1):
+            host_g2core.Boot,
+    }
+    for line, kind in written.items():
+        assert isinstance(host_g2core.parse_line(line.rstrip(b"\n")), kind)
+
+
 def protocol_detector(data: bytes) -> None:
     """DetectingSession.feed (its sans-IO part; the 200 ms give-up in run() needs trio's clock):
     at most one session, booted before fed; it gets an unbroken tail of the stream that starts
@@ -546,7 +591,8 @@ TARGETS: dict[str, Callable[[bytes], None]] = {
     target.__name__: target
     for target in (
         marlin_receiver, ultimaker_receiver, repetier_receiver, commstack_receiver,
-        stk500_receiver, protocol_detector, host_marlin_parser, host_ultimaker_parser,
+        stk500_receiver, g2core_receiver, protocol_detector, host_marlin_parser,
+        host_ultimaker_parser, host_g2core_parser,
         host_repetier_parser, commstack_frames, repetier_binary, gcode_parser, scenario_loader,
     )
 }
