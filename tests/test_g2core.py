@@ -235,3 +235,20 @@ async def test_each_board_has_its_own_id(autojump_clock):
             board = Board(printer.open())
             ids.append((await board.line())["r"]["id"])
     assert ids[0] != ids[1] and all(len(i) == 19 and i.count("-") == 3 for i in ids)
+
+
+async def test_a_queue_flush_in_a_hold_drops_the_moves_and_stays_where_it_stopped(autojump_clock):
+    async with memory_printer(firmware="g2core", protocol="g2core") as printer:
+        board = Board(printer.open())
+        await board.line()
+        await board.ask(b"G1 X40 F600\n")
+        await board.ask(b"G1 Y40\n")
+        await trio.sleep(1)
+        await board.stream.send_all(b"!")
+        await trio.sleep(1)
+        await board.stream.send_all(b"%\n")
+        sr = (await board.ask(b"{sr:n}\n"))["r"]["sr"]
+        assert sr["stat"] == 3 and 0 < sr["posx"] < 40 and sr["posy"] == 0
+        await trio.sleep(10)
+        assert (await board.ask(b"{sr:n}\n"))["r"]["sr"]["posx"] == sr["posx"]  # nothing ran on
+        assert printer.server.printer.motion.position[0] == sr["posx"]

@@ -16,6 +16,7 @@ import trio
 from fake_marlin.emulator.firmware import Firmware
 from fake_marlin.emulator.journal.writer import Journal
 from fake_marlin.emulator.printer import g2core as board
+from fake_marlin.emulator.printer import motion
 from fake_marlin.emulator.printer.g2core import BoardState, BoardView, Build, MachineState
 from fake_marlin.emulator.printer.gcode import parse
 from fake_marlin.emulator.printer.model import Printer, Reply
@@ -213,12 +214,12 @@ class G2coreSession:
         elif byte == g2core.QUEUE_FLUSH:
             if state.stat is MachineState.HOLD:  # a control only while a hold exists
                 self.protocol.discard_data()
-                self.printer.planner.clear()
+                motion.quickstop(self.printer, trio.current_time())  # stopped where it is
                 state.stat = MachineState.PROGRAM_STOP
         elif byte == g2core.KILL_JOB:
             if state.stat not in (MachineState.ALARM, MachineState.SHUTDOWN, MachineState.PANIC):
                 self.protocol.discard_data()
-                self.printer.planner.clear()
+                motion.quickstop(self.printer, trio.current_time())  # stopped where it is
                 for heater in (*self.printer.hotends, self.printer.bed):
                     heater.set_target(trio.current_time(), 0.0)
                 state.stat = MachineState.PROGRAM_END
