@@ -71,7 +71,7 @@ def test_numbers_are_written_as_floattoa_writes_them():
 def test_the_machine_reads_controls_ahead_of_queued_gcode_and_counts_each_lines_bytes():
     protocol = G2coreProtocol()
     protocol.reading_gcode = False  # the planner is full
-    protocol.receive_data(b'N12G1X5\nG1 X10\n{"qr":""}\n{"ej":1}\r\n!~\x05N1 G1*99\nG1 X1*5\n')
+    protocol.receive_data(b'N12G1X5\nG1 X10\n{"qr":""}\n{"ej":1}\r\n!~\x05N1 G1*99\nG1 X1*63\n')
     events = []
     while (event := protocol.next_event()) is not None:
         events.append(event)
@@ -82,7 +82,26 @@ def test_the_machine_reads_controls_ahead_of_queued_gcode_and_counts_each_lines_
     while (event := protocol.next_event()) is not None:
         events.append(event)
     assert events[5:] == [CommandReceived("G1X5", 12, 8), CommandReceived("G1 X10", None, 7),
-                          BadLine(118, 9), BadLine(120, 8)]
+                          BadLine(118, 9), BadLine(120, 9)]
+
+
+def test_a_checksum_is_checked_as_g2core_checks_it_and_line_numbers_never_are():
+    """gcode_parser.cpp _verify_checksum(): the XOR of what precedes the first `*`, compared with
+    strtol() of what follows it, before the `N` is looked for; the line ends at the `*`."""
+    def events(data: bytes) -> list:
+        protocol = G2coreProtocol()
+        protocol.receive_data(data)
+        return list(iter(protocol.next_event, None))
+
+    assert events(b"*999\n*0\nG1 X1*5\n") == [BadLine(118, 5), BadLine(120, 3), BadLine(118, 8)]
+    # A line feed lost between two lines: the first one's checksum still checks out (strtol stops
+    # at the `N`), and the second is cut off with the rest.
+    assert events(b"N12 G1 X5*86\x0bN13 G1 X6*37\n") == [CommandReceived("G1 X5", 12, 26)]
+    # No sequence: the same N twice, or one going back, runs (cm_check_linenum() never does).
+    assert events(b"N7 G1*47\nN7 G1*47\nN3 G1*43\n") == [
+        CommandReceived("G1", 7, 9), CommandReceived("G1", 7, 9), CommandReceived("G1", 3, 9)]
+    # Digits of other scripts are no line number.
+    assert events("N\u00b2 G1\n".encode("latin-1")) == [CommandReceived("N\u00b2 G1", None, 6)]
 
 
 def test_a_line_the_parser_refuses_is_an_event_not_an_exception():

@@ -10,8 +10,9 @@ feedhold blocks it). Lines with only CR/LF are never returned (xio.cpp:709-726);
 than the 512-byte buffer is cut at 511 characters and the rest skipped.
 
 A data line's checksum, where it has one (`N<n> ... *<xor of every byte before *>`), is checked
-(gcode_parser.cpp:286-315): a mismatch is status 118, a `*` without `N` 120; the line goes no
-further, and its answer is the session's (BadLine). The footer's third element is the bytes of
+(gcode_parser.cpp:286-315): a mismatch is status 118, a matching one on a line without `N` 120;
+the line goes no further, and its answer is the session's (BadLine). Line numbers are never
+checked for sequence (see _data_line): a line that comes twice runs twice. The footer's third element is the bytes of
 the line just read: a data line's length + 1, a control's with its line ending(s)
 (json_parser.cpp:604-617, xio.cpp:759-788, 917-934); every event carries it as `size`.
 """
@@ -187,26 +188,45 @@ def _find_end(buffer: bytearray) -> int | None:
 
 
 def _data_line(line: bytes, size: int) -> CommandReceived | BadLine:
-    """A data line as the G-code parser first takes it: its N and checksum checked, where a
-    checksum is given (gcode_parser.cpp:286-315)."""
-    text = line.decode("latin-1")
-    star = text.find("*")
+    """A data line as the G-code parser first takes it: its checksum checked, where it has one
+    (gcode_parser.cpp:286-315, _verify_checksum). The controller has skipped leading spaces and
+    tabs (controller.cpp:248-250). The XOR covers every byte before the first `*`; what follows
+    it is read as strtol() reads it (leading digits; none is 0) and the line ends at the `*`. A
+    mismatch is 118; a match on a line not starting with `N` is 120. There is no line-number
+    check: cm_check_linenum() runs only with gf.checksum set, and _parse_gcode_block() clears
+    gf (its memset) after _verify_checksum() set it, so a line's N is never compared with the
+    last one (gcode_parser.cpp:661 and 949-951; master the same)."""
+    text = line.decode("latin-1").lstrip(" \t")
     number: int | None = None
-    stripped = text.lstrip()
+    star = text.find("*")
     if star >= 0:
-        if not stripped[:1] in ("N", "n"):
-            return BadLine(g2core.MISSING_LINE_NUMBER, size)
-        given = text[star + 1:].strip()
-        if not given.isdigit() or int(given) != xor8(line[:star]):
+        if _strtol(text[star + 1:]) != xor8(text[:star].encode("latin-1")):
             return BadLine(g2core.CHECKSUM_MISMATCH, size)
+        if not text.startswith("N"):
+            return BadLine(g2core.MISSING_LINE_NUMBER, size)
         text = text[:star]
+    stripped = text.lstrip()
     if stripped[:1] in ("N", "n"):
         digits = ""
         for char in stripped[1:]:
-            if not char.isdigit():
+            if not "0" <= char <= "9":  # (not str.isdigit: latin-1 has ² and ³)
                 break
             digits += char
         if digits:
             number = int(digits)
             text = stripped[1 + len(digits):]
     return CommandReceived(text.strip(), number, size)
+
+
+def _strtol(text: str) -> int:
+    """C's strtol(text, NULL, 10): white space, a sign, the digits that follow; 0 if none."""
+    text = text.lstrip(" \t\n\v\f\r")
+    sign = -1 if text[:1] == "-" else 1
+    if text[:1] in ("+", "-"):
+        text = text[1:]
+    digits = ""
+    for char in text:
+        if not "0" <= char <= "9":
+            break
+        digits += char
+    return sign * int(digits) if digits else 0
