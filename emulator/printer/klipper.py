@@ -174,20 +174,26 @@ def extended_params(command: Command) -> dict[str, str]:
 _MISSING = object()
 
 
-def get_float(command: Command, params: dict[str, str], name: str, default=_MISSING,
-              minval: float | None = None, maxval: float | None = None,
-              above: float | None = None, below: float | None = None):
-    """GCodeCommand.get_float() of an extended command's parameters."""
+def _get(command: Command, params: dict[str, str], name: str, parse, default):
+    """GCodeCommand._get_wrapper(): the parameter's text through `parse`, or the refusal."""
     text = params.get(name)
     if text is None:
         if default is _MISSING:
             raise _Refused(state("parameter_missing", line=command.text, param=name))
-        return default
+        return default, False
     try:
-        value = float(text)
+        return parse(text), True
     except ValueError:
         raise _Refused(state("parameter_unparsable", line=command.text, value=text)) from None
-    _check_limits(command, name, value, minval, maxval, above, below)
+
+
+def get_float(command: Command, params: dict[str, str], name: str, default=_MISSING,
+              minval: float | None = None, maxval: float | None = None,
+              above: float | None = None, below: float | None = None):
+    """GCodeCommand.get_float() of an extended command's parameters."""
+    value, given = _get(command, params, name, float, default)
+    if given:
+        _check_limits(command, name, value, minval, maxval, above, below)
     return value
 
 
@@ -195,16 +201,9 @@ def get_int(command: Command, params: dict[str, str], name: str, default=_MISSIN
             minval: int | None = None):
     """GCodeCommand.get_int() of an extended command's parameters: Python's int() of the
     text (`MOVE=1.5` and `MOVE=inf` cannot be parsed)."""
-    text = params.get(name)
-    if text is None:
-        if default is _MISSING:
-            raise _Refused(state("parameter_missing", line=command.text, param=name))
-        return default
-    try:
-        value = int(text)
-    except ValueError:
-        raise _Refused(state("parameter_unparsable", line=command.text, value=text)) from None
-    _check_limits(command, name, value, minval, None, None, None)
+    value, given = _get(command, params, name, int, default)
+    if given:
+        _check_limits(command, name, value, minval, None, None, None)
     return value
 
 
