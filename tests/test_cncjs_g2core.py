@@ -174,9 +174,14 @@ def test_cncjs_runs_a_job_with_a_feedhold_on_a_g2core_board(cncjs_run):
     read = timed_lines(report["wire"], "r")
     written = timed_lines(report["wire"], "w")
 
-    # cncjs shows the board's build, from its banner and {sys:n}.
-    banner = json.loads(read[0][1])
-    assert banner["r"]["msg"] == "SYSTEM READY" and banner["f"] == [1, 0, 1], read[:3]
+    # cncjs shows the board's build, from its banner (one, at the USB connect, before the job)
+    # and {sys:n}.
+    banners = [(t, parsed) for t, parsed in reports(read, "r")
+               if parsed["r"].get("msg") == "SYSTEM READY"]
+    assert len(banners) == 1, (banners, read[:5])
+    first_job_line = next(t for t, line in written if re.match(r"N\d+", line))
+    (at, banner), = banners
+    assert at <= first_job_line and banner["f"] == [1, 0, 1], banner
     firmware = report["firmware"]
     assert (firmware["fb"], firmware["fv"]) == (banner["r"]["fb"], banner["r"]["fv"]) == (
         101.03, 0.99), firmware
