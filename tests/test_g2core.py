@@ -271,3 +271,19 @@ async def test_a_queue_flush_in_a_hold_drops_the_moves_and_stays_where_it_stoppe
         await trio.sleep(10)
         assert (await board.ask(b"{sr:n}\n"))["r"]["sr"]["posx"] == sr["posx"]  # nothing ran on
         assert printer.server.printer.motion.position[0] == sr["posx"]
+
+
+async def test_a_dwell_is_seconds_and_queued_so_the_next_lines_are_read(autojump_clock):
+    async with memory_printer(firmware="g2core", protocol="g2core") as printer:
+        board = Board(printer.open())
+        await board.line()
+        await board.ask(b"G1 X10 F600\n")
+        start = trio.current_time()
+        await board.ask(b"G4 P2\n")
+        assert (await board.ask(b"G1 X20\n"))["f"][1] == 0
+        assert trio.current_time() - start < 0.1  # read on, not waited for
+        await board.ask(b"{sr:{stat:t,posx:t}}\n")
+        while (report := await board.line()).get("sr", {}).get("stat") != 3:
+            pass
+        assert report["sr"]["posx"] == 20
+        assert 1 + 2 + 1 - 0.1 < trio.current_time() - start < 1 + 2 + 1 + 0.6  # moves + dwell

@@ -103,10 +103,14 @@ def _queue(printer, start: tuple[float, ...], target: list[float], duration: flo
     printer.motion.position = list(target)
 
 
+SYNC_POLL = 1.0  # s: how often a wait for the moves looks again (a feedhold moves their end)
+
+
 def synchronize(printer, now: float):
-    drained = printer.planner.drained_at(now)
-    if drained > now:
-        now = yield Sleep(drained)
+    """Wait until every planned move is done: looked at again after a while, since a feedhold
+    or a stall moves their end (the wait still ends exactly when they do)."""
+    while (drained := printer.planner.drained_at(now)) > now:
+        now = yield Sleep(min(drained, now + SYNC_POLL))
     return now
 
 

@@ -253,6 +253,9 @@ class G2coreSession:
             self._respond(body, g2core.OK, received.size)
             return
         executed = received.text.split(";", 1)[0].strip()  # what the journal says ran
+        if code == "G4":
+            self._dwell(parse(text), executed, body, received.size)
+            return
         if code in MODAL_ONLY:
             self._before_command(received.text)
             self.journal.record(executed)
@@ -286,6 +289,19 @@ class G2coreSession:
         if until is not None:
             self._waiting = (run, until)
             self._work.set()
+
+    def _dwell(self, command, executed: str, body: dict[str, OutValue], size: int) -> None:
+        """G4 P<seconds> (g2core's P is seconds, canonical_machine.cpp:1283): a planner buffer
+        of its own, queued behind the moves; the lines after it are read on (planner.cpp:427)."""
+        self._before_command(executed)
+        seconds = command.value("P", command.value("S", 0.0))
+        seconds = min(max(0.0, seconds), 1e6) if seconds == seconds else 0.0
+        now = trio.current_time()
+        here = tuple(self.printer.motion.position)
+        self.printer.planner.add(now, seconds, here, here)
+        self.journal.record(executed)
+        self._respond(body, g2core.OK, size)
+        self.state.stat = MachineState.RUN
 
     def _hand_to_marlin(self, received: CommandReceived) -> None:
         """A Marlin host showed itself: Marlin's protocol from this line until the port closes."""
