@@ -39,6 +39,9 @@ from fake_marlin.wire.g2core import Number, OutValue
 # The Marlin codes that only a Marlin host sends (seed 001's canaries): g2core's Marlin
 # compatibility (gcode_parser.cpp:1127-1200) switches the connection to Marlin's protocol.
 CANARIES = frozenset({"M105", "M108", "M110", "M114", "M115"})
+# controller.cpp:340-366: the banner 2 s after a USB connect on a build with Marlin
+# compatibility (10 ms without), time for a Marlin host to show itself first.
+BANNER_DELAY = 2.0
 PROGRAM_END = frozenset({"M2", "M30"})
 MOTION_MODES = {"G0": 0, "G1": 1, "G2": 2, "G3": 3}  # `momo` (gcode.h)
 # Seed 001's lightning codes: Marlin's G-code meanings from then on (an `E` word too).
@@ -92,9 +95,17 @@ class G2coreSession:
         self._marlin_scope = trio.CancelScope()
         self._sr_requested = False  # report.cpp: a line read, a cycle's end, motion
         self.flavour = Flavour.G2CORE
+        self._banner_at: float | None = None  # when the banner is due
+        self._banner_due = trio.Event()
 
     # -- what a session is ------------------------------------------------------------------
     def boot(self) -> None:
+        """The board starts, or a host opens its USB port: its banner in BANNER_DELAY, unless a
+        Marlin host has spoken by then (report.cpp:113-120)."""
+        self._banner_at = trio.current_time() + BANNER_DELAY
+        self._banner_due.set()
+
+    def _say_banner(self) -> None:
         view = self._view()
         body: dict[str, OutValue] = {name: board.READ[name](view)
                                      for name in ("fv", "fb", "fbs", "fbc", "hp", "hv", "id")}
@@ -115,6 +126,7 @@ class G2coreSession:
             async with trio.open_nursery() as nursery:
                 nursery.start_soon(self._execute)
                 nursery.start_soon(self._report)
+                nursery.start_soon(self._banner)
                 await self._marlin_started.wait()
                 nursery.cancel_scope.cancel()  # Marlin's protocol from now on: its session runs
             assert self._marlin is not None
@@ -134,6 +146,7 @@ class G2coreSession:
                 self._marlin, self._marlin_started = None, trio.Event()
                 self.protocol = G2coreProtocol()
                 self._waiting = None
+                self.flavour = Flavour.G2CORE
             self.boot()
             statements = tuple(statement for statement in statements
                                if statement.key != "connected")
@@ -314,6 +327,18 @@ class G2coreSession:
 
 
     # -- its own time -----------------------------------------------------------------------
+    async def _banner(self) -> None:
+        while True:
+            due = self._banner_due = trio.Event()
+            if self._banner_at is not None:
+                with trio.move_on_at(self._banner_at):
+                    await due.wait()
+                    continue
+                self._banner_at = None
+                if self._marlin is None and not self._resetting:
+                    self._say_banner()
+            await due.wait()
+
     async def _execute(self) -> None:
         while True:
             if self._waiting is not None:

@@ -312,6 +312,13 @@ async function main() {
     return asked && progress.socket_read.some((entry) => entry.t >= asked.t && entry.line.startsWith('{"r":{"sr":'))
       && IDLE_STATS.includes(stat());
   });
+  // A board with Marlin compatibility says its banner 2 s after the port opens; while running,
+  // cncjs would count that `r` as a job line's acknowledgement. Wait for it (where the serial
+  // tap sees the board's lines).
+  if (progress.socket_read.length || !options.url) {
+    progress.waiting_for = 'the board\'s banner';
+    await until(() => progress.socket_read.some((entry) => entry.line.includes('"msg":"SYSTEM READY"')));
+  }
   progress.init_done_ms = ms();
   progress.firmware.sys = settings.jv !== undefined; // {sys:n} answered: its values are in the settings
 
