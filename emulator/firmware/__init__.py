@@ -57,6 +57,11 @@ class Firmware:
         self.quirks = quirks
         self.words = Words(self.profile, self.identity, self.said_capabilities())
 
+    def with_uuid(self, uuid: str) -> "Firmware":
+        """This firmware saying another UUID (g2core's Marlin side says the board's id)."""
+        return Firmware(self.profile, dataclasses.replace(self.identity, uuid=uuid), self.quirks,
+                        self.capabilities)
+
     def speaking(self, protocol: str) -> "Firmware":
         """This printer's firmware as a host that speaks `protocol` hears it: a board that
         tells protocols apart (--protocol auto) answers a Repetier host in Repetier-Firmware's

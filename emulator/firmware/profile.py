@@ -19,6 +19,7 @@ from typing import Any
 
 from fake_marlin.emulator.firmware.identity import SAMPLE_VALUES
 from fake_marlin.emulator.firmware.quirks import Quirks, read_quirks
+from fake_marlin.emulator.firmware.templates import fill
 from fake_marlin.emulator.printer.heating import HeatWait
 from fake_marlin.emulator.printer.model import SET_STATEMENTS
 from fake_marlin.emulator.printer.statements import CATALOG, SPECIAL
@@ -388,7 +389,7 @@ SAMPLE_CONTEXT: dict[str, object] = {
 
 def _check(table: TableReader, key: str, template: str, values: Mapping[str, object]) -> None:
     try:
-        template.format(**values)
+        fill(template, values)
     except KeyError as error:
         table.fail(key, f"{template!r} names {{{error.args[0]}}}, which is not one of its "
                         f"values: {', '.join(sorted(values))}")

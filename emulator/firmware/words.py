@@ -5,6 +5,7 @@ from typing import Any
 
 from fake_marlin.emulator.firmware.identity import Identity
 from fake_marlin.emulator.firmware.profile import Profile
+from fake_marlin.emulator.firmware.templates import fill
 from fake_marlin.emulator.printer.statements import Heat, Statement
 
 
@@ -51,7 +52,7 @@ class Words:
         lines = []
         for template in templates:
             if template:
-                lines.extend(template.format(**context).split("\n"))
+                lines.extend(fill(template, context).split("\n"))
         return lines
 
     def _heaters(self, values: Any) -> dict[str, object]:

@@ -161,6 +161,14 @@ class G2coreProtocol:
         self._data.clear()
         return count
 
+    def take_unread(self) -> bytes:
+        """The data lines received and not yet read, and the start of the next: what a
+        connection that switches to another protocol (Marlin's) reads next."""
+        data = b"".join(line + b"\n" for line, _ in self._data) + bytes(self._buffer)
+        self._data.clear()
+        self._buffer.clear()
+        return data
+
     @property
     def waiting_lines(self) -> int:
         """Data lines received and not yet read."""

@@ -216,12 +216,14 @@ class PrinterServer:
             )
         if protocol == "g2core":
             digits = firmware.identity.uuid.replace("-", "")[:16]
+            # The board's `id` (Motate's unique id, xxxx-xxxx-xxxx-xxxx): the printer's own,
+            # which its Marlin side says as M115's UUID.
+            board_id = "-".join(digits[at:at + 4] for at in range(0, 16, 4))
+            marlin = self.firmware.speaking("marlin").with_uuid(board_id)
             return G2coreSession(
                 self.printer, self.journal, self._send, self._before_command, firmware,
-                self._request_restart,
-                # The board's `id` (Motate's unique id, xxxx-xxxx-xxxx-xxxx): the printer's own.
-                build=Build(id="-".join(digits[at:at + 4] for at in range(0, 16, 4))),
-                marlin=lambda: self._marlin_session(reason, self.firmware.speaking("marlin")),
+                self._request_restart, build=Build(id=board_id),
+                marlin=lambda: self._marlin_session(reason, marlin),
             )
         if protocol == "commstack":
             return CommStackSession(self.printer, self.journal, self._send, self._before_command,

@@ -323,7 +323,7 @@ class G2coreSession:
         marlin.boot()
         self._marlin_started.set()
         line = received.text if received.number is None else f"N{received.number} {received.text}"
-        marlin.feed(line.encode() + b"\n")
+        marlin.feed(line.encode() + b"\n" + self.protocol.take_unread())
 
 
     # -- its own time -----------------------------------------------------------------------
