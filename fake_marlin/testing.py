@@ -294,7 +294,7 @@ class FarmPrinter:
 class PrinterOptions(TypedDict, total=False):
     """A printer's settings, as `fake-marlin`'s command line takes them."""
 
-    protocol: str  # auto (default), marlin, ultimaker, repetier, commstack
+    protocol: str  # auto (default), marlin, ultimaker, repetier, commstack, g2core
     firmware: str | os.PathLike[str]  # marlin (default), prusa, klipper...; or a profile file
     quirks: Mapping[str, object]  # the firmware's quirks to switch, e.g. {"ok_before_output": True}
     speed: float  # simulated time runs this many times faster than real time (default 1)

@@ -121,8 +121,9 @@ def add_arguments(parser: argparse._ActionsContainer) -> None:
     parser.add_argument(
         "--firmware", metavar="NAME|FILE", default="marlin",
         help="the firmware it is: marlin (default; Marlin 2.1), marlin-1.1, prusa, klipper, "
-        "reprapfirmware, smoothieware, repetier, ultimaker2, or a profile file (FILE.toml, which "
-        "may extend one of them); `--firmware list` lists them. See docs/firmwares.md",
+        "reprapfirmware, smoothieware, repetier, ultimaker2, g2core, or a profile file "
+        "(FILE.toml, which may extend one of them); `--firmware list` lists them. See "
+        "docs/firmwares.md",
     )
     parser.add_argument(
         "--quirk", action="append", default=[], metavar="NAME[=VALUE]", type=_quirk,
