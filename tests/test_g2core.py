@@ -144,7 +144,7 @@ async def test_a_board_answers_a_cncjs_style_start_and_runs_a_job_with_a_feedhol
         assert (await board.ask(b"{jv:9}\n"))["f"] == [1, 109, 8]
         sr = await board.ask(b"{sr:{stat:t,line:t,posx:t}}\n")
         assert sr == {"r": {"sr": {"stat": 1, "line": 0, "posx": 0}}, "f": [1, 0, 29]}
-        assert (await board.ask(b"{qr:n}\n"))["r"] == {"qr": 15}
+        assert (await board.ask(b"{qr:n}\n"))["r"] == {"qr": 48}  # PLANNER_QUEUE_SIZE
         assert await board.ask(b"N1G1X40F600\n") == {"r": {"n": 1}, "f": [1, 0, 12]}
         report = await board.line()
         while "sr" not in report:

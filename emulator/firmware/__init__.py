@@ -93,7 +93,7 @@ class Firmware:
             password=quirks.password, locked_at_boot=quirks.locked,
             machine_name=self.identity.machine_name,
             silent_unknown_codes=self.profile.silent_unknown_codes,
-            heat_wait=self.profile.heat_wait)
+            heat_wait=self.profile.heat_wait, planner_moves=self.profile.planner_moves)
 
     def said_capabilities(self) -> tuple[tuple[str, bool], ...]:
         """M115's capabilities: the profile's (as --capability changed them), EEPROM as the

@@ -21,6 +21,7 @@ from fake_marlin.emulator.firmware.identity import SAMPLE_VALUES
 from fake_marlin.emulator.firmware.quirks import Quirks, read_quirks
 from fake_marlin.emulator.firmware.templates import fill
 from fake_marlin.emulator.printer.heating import HeatWait
+from fake_marlin.emulator.printer.planner import MAX_MOVES
 from fake_marlin.emulator.printer.model import SET_STATEMENTS
 from fake_marlin.emulator.printer.statements import CATALOG, SPECIAL
 from fake_marlin.emulator.protocols.marlin import LineRules
@@ -97,6 +98,7 @@ class Profile:
     # unknown command (Marlin 1.0's process_command(), the Ultimaker 2's).
     silent_unknown_codes: bool = False
     heat_wait: HeatWait = HeatWait()  # how M109/M190 wait ([heating])
+    planner_moves: int = MAX_MOVES  # the moves its planner holds (Marlin 15, g2core 48)
 
     def capability(self, name: str) -> bool:
         return dict(self.capabilities).get(name, False)
@@ -222,6 +224,7 @@ def _build(tables: dict[str, Any], path: str) -> Profile:
         quirks=read_quirks(top.table_at("quirks"), Quirks()),
         silent_unknown_codes=top.get("silent_unknown_codes", bool, False),
         heat_wait=_heat_wait(top.table_at("heating")),
+        planner_moves=top.get("planner_moves", int, MAX_MOVES, minimum=4, maximum=1000),
     )
     identity.finish()
     top.finish()

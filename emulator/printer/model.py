@@ -99,6 +99,7 @@ class PrinterConfig:
     steps_per_mm: tuple[float, float, float] = (80.0, 80.0, 400.0)
     homing_feedrate: tuple[float, float, float] = (50.0, 50.0, 10.0)  # mm/s
     default_feedrate: float = 1500.0  # mm/min until the first F word
+    planner_moves: int = MAX_MOVES  # moves the planner holds (a profile's planner_moves)
 
     def capability(self, name: str) -> bool:
         return dict(self.capabilities).get(name, False)
@@ -166,7 +167,7 @@ class Printer:
         self.eeprom = eeprom.EepromFile(self.config.eeprom_file)  # outlives resets
         self.password = self.config.password
         self.locked = False
-        self._planner = Planner()
+        self._planner = Planner(self.config.planner_moves)
         self._unplanned: list[tuple[PlainMove, float]] = []  # see move_at_once()
         self.hotends = [Heater(HOTEND, now) for _ in range(self.config.extruders)]
         self.bed = Heater(BED, now)
@@ -273,7 +274,7 @@ class Printer:
             return False  # execute() refuses it
         # Room for certain: blocks are retired only as planning goes, in order of arrival, so
         # the planner holds at most this many moves that have not finished.
-        if len(self._unplanned) + self._planner.held() >= MAX_MOVES:
+        if len(self._unplanned) + self._planner.held() >= self._planner.max_moves:
             self._plan_moves()
             if self._planner.room(now) <= 0:
                 return False
@@ -285,7 +286,8 @@ class Printer:
         its way. For a session to call when its answer is out and the host is busy: the batch
         is then planned now, not on the way to the next answer. (The larger the batch, the less
         its first move's cold start costs each: this makes it as large as it can be.)"""
-        if self._unplanned and len(self._unplanned) + self._planner.held() >= MAX_MOVES - 1:
+        if self._unplanned and len(self._unplanned) + self._planner.held() >= (
+                self._planner.max_moves - 1):
             self._plan_moves()
 
     def emergency(self, text: str, now: float) -> tuple[Statement, ...]:

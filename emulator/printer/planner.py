@@ -36,8 +36,9 @@ def move_time(distance: float, speed: float, acceleration: float, junction_speed
 
 
 class Planner:
-    def __init__(self) -> None:
+    def __init__(self, max_moves: int = MAX_MOVES) -> None:
         self._blocks: deque[Block] = deque()
+        self.max_moves = max_moves  # Marlin's 16-block ring holds 15; g2core's pool 48
 
     def _retire(self, now: float) -> None:
         while self._blocks and self._blocks[0].end <= now:
@@ -52,7 +53,7 @@ class Planner:
         return len(self._blocks)
 
     def room(self, now: float) -> int:
-        return MAX_MOVES - self.moves(now)
+        return self.max_moves - self.moves(now)
 
     def next_change(self, now: float) -> float | None:
         """When the oldest planned move finishes (and room grows), or None if idle."""
@@ -67,7 +68,7 @@ class Planner:
     def add(self, now: float, duration: float, origin: tuple[float, ...], target: tuple[float, ...]) -> Block:
         blocks = self._blocks
         self._retire(now)
-        if len(blocks) >= MAX_MOVES:
+        if len(blocks) >= self.max_moves:
             raise RuntimeError("planner is full")  # the caller must wait for next_change()
         start = max(now, blocks[-1].end) if blocks else now
         # tuple.__new__ rather than Block(): the NamedTuple's own __new__ is a Python call.
@@ -85,7 +86,7 @@ class Planner:
             return
         blocks = self._blocks
         self._retire(moves[0][0])
-        if len(blocks) + len(moves) > MAX_MOVES:
+        if len(blocks) + len(moves) > self.max_moves:
             raise RuntimeError("planner is full")  # the caller admitted more than it has room for
         end = blocks[-1].end if blocks else -math.inf
         for now, duration, origin, target in moves:
