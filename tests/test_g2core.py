@@ -178,6 +178,10 @@ async def test_a_marlin_host_on_the_same_port_is_answered_in_marlins_words(autoj
         while b"UUID:" not in data:
             data += await stream.receive_some(4096)
         assert b"FIRMWARE_NAME:Marlin g2core-101.03 SOURCE_CODE_URL:https://github.com/synthetos/g2" in data
+        await stream.send_all(b'{"fb":n}\nM105\n')  # JSON is still g2core's, in JSON
+        while b"ok T:" not in data:
+            data += await stream.receive_some(4096)
+        assert b'{"r":{"fb":101.03},"f":[1,0,10]}\nok T:21 /0 B:21 /0 @:0 B@:0\n' in data
         with trio.move_on_after(3):
             data += await stream.receive_some(4096)
         assert b"SYSTEM READY" not in data

@@ -114,12 +114,46 @@ class G2coreSession:
 
     def feed(self, data: bytes) -> None:
         if self._marlin is not None:
-            self._marlin.feed(data)
+            self._feed_marlin(data)
             return
         if self._resetting:
             return
         self.protocol.receive_data(data)
         self._read()
+
+    def _feed_marlin(self, data: bytes) -> None:
+        """A connection in Marlin's protocol: a `{...}` line is still g2core's JSON, answered
+        in JSON (controller.cpp dispatches it before Marlin's mode); the rest is Marlin's."""
+        held = self._marlin_held + data
+        passed = bytearray()
+        start = 0
+        while (end := _line_end(held, start)) is not None:
+            line = held[start:end + 1]
+            if line.lstrip()[:1] == b"{":
+                self._marlin_json(bytes(passed), line)
+                passed.clear()
+            else:
+                passed += line
+            start = end + 1
+        rest = held[start:]
+        self._marlin_held = rest if rest.lstrip()[:1] == b"{" else b""
+        if not self._marlin_held:
+            passed += rest
+        if passed and self._marlin is not None:
+            self._marlin.feed(bytes(passed))
+
+    def _marlin_json(self, before: bytes, line: bytes) -> None:
+        if before and self._marlin is not None:
+            self._marlin.feed(before)
+        json_lines = G2coreProtocol()
+        json_lines.receive_data(line)
+        while (event := json_lines.next_event()) is not None:
+            if isinstance(event, JsonRequest):
+                self._json(event)
+            elif isinstance(event, BadRequest):
+                self._respond({}, event.status, event.size)
+
+    _marlin_held = b""
 
     async def run(self) -> None:
         while True:
@@ -421,6 +455,11 @@ def _status(reply: Reply, code: str) -> int:
             return g2core.MCODE_UNSUPPORTED if code.startswith("M") else (
                 g2core.GCODE_COMMAND_UNSUPPORTED)
     return g2core.OK
+
+
+def _line_end(data: bytes, start: int) -> int | None:
+    ends = [at for at in (data.find(b"\n", start), data.find(b"\r", start)) if at >= 0]
+    return min(ends) if ends else None
 
 
 def normalize_gcode(text: str) -> str:
