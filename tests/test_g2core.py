@@ -296,3 +296,25 @@ async def test_a_dwell_is_seconds_and_queued_so_the_next_lines_are_read(autojump
             pass
         assert report["sr"]["posx"] == 20
         assert 1 + 2 + 1 - 0.1 < trio.current_time() - start < 1 + 2 + 1 + 0.6  # moves + dwell
+
+
+async def test_a_thermal_fault_is_an_alarm_that_refuses_lines_until_clear(autojump_clock):
+    from fake_marlin.emulator.printer.failures import Failure, FailureKind, apply
+
+    async with memory_printer(firmware="g2core", protocol="g2core") as printer:
+        board = Board(printer.open())
+        while (await board.line()).get("r", {}).get("msg") != "SYSTEM READY":
+            pass
+        server = printer.server
+        server.announce(apply(server.printer, Failure(FailureKind.THERMAL_RUNAWAY, "T0"),
+                              trio.current_time()))
+        report = await board.line()
+        while "er" not in report:
+            report = await board.line()
+        assert report["er"]["st"] == 18 and report["er"]["msg"].startswith("System alarm - ")
+        assert await board.ask(b"N7G1X5\n") == {"r": {}, "f": [1, 204, 7]}
+        assert (await board.ask(b"{he1st:200}\n"))["f"][1] == 204  # a SET too
+        assert (await board.ask(b"{sr:n}\n"))["r"]["sr"]["stat"] == 2  # a GET still works
+        assert (await board.ask(b"{clear:n}\n"))["f"][1] == 0
+        assert (await board.ask(b"N8G1X5\n"))["f"][1] == 0
+        assert printer.journal == ["G1X5"]

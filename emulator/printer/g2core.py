@@ -223,6 +223,8 @@ GROUPS: Mapping[str, Callable[[BoardView], dict[str, OutValue]]] = {
     "mpo": lambda view: {axis: READ[f"mpo{axis}"](view) for axis in AXES},
     "pwr": lambda view: {str(motor): Number(0, 3) for motor in range(1, 7)},
 }
+ACTIONS = ("clear", "clr", "me", "md")  # names that do something when read or set (clear an
+# alarm, enable or disable the motors: config_app.cpp:741-781)
 SETTINGS_RANGES = {"ej": (0, 2), "jv": (0, 8), "qv": (0, 2), "sv": (0, 2), "si": (100, 50000),
                    "tv": (0, 1)}
 
@@ -286,6 +288,7 @@ def set_value(view: BoardView, name: str, value: JsonValue) -> dict[str, OutValu
     if name in ("clear", "clr"):
         if view.state.stat in (MachineState.ALARM, MachineState.SHUTDOWN):
             view.state.stat = MachineState.PROGRAM_STOP
+            view.printer.clear_halt()  # type: ignore[attr-defined]
         return {name: None}
     if name in ("me", "md"):
         return {name: None}
@@ -305,15 +308,18 @@ def answer(view: BoardView, pairs: dict[str, JsonValue]) -> tuple[dict[str, OutV
     """A JSON request's body and status: its GETs and SETs in order; an unknown name refuses
     the whole line, echoing what was read up to it with that one as null."""
     for index, name in enumerate(pairs):
-        if name not in READ and name not in GROUPS and name not in (
-                "sr", "clear", "clr", "me", "md") and not (
+        if name not in READ and name not in GROUPS and name not in ("sr", *ACTIONS) and not (
                 name.startswith("he") and name.endswith("st")):
             echo: dict[str, OutValue] = {key: None for key in list(pairs)[:index + 1]}
             return echo, g2core.UNRECOGNIZED_NAME
     body: dict[str, OutValue] = {}
     for name, value in pairs.items():
+        if value is not NULL and name not in ("clear", "clr") and view.state.stat in (
+                MachineState.ALARM, MachineState.SHUTDOWN):
+            body[name] = None  # alarm.cpp:106-112: a SET is refused; GETs still work
+            return body, g2core.ALARMED
         try:
-            if value is NULL:
+            if value is NULL and name not in ACTIONS:
                 body[name] = get(view, name)
             else:
                 body.update(set_value(view, name, value))

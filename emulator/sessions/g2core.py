@@ -187,10 +187,17 @@ class G2coreSession:
         if self._marlin is not None:
             self._marlin.announce(statements)
             return
+        alarm = self.printer.halted and self.state.stat is not MachineState.ALARM
+        if alarm:  # a kill (a thermal fault): g2core's alarm, until {clear:n} (alarm.cpp)
+            self.state.stat = MachineState.ALARM
+            self._sr_requested = True
+            self._changed.set()
         for line in self.firmware.words.lines(statements):
-            if line.startswith("Error:") or line.startswith("!!"):
-                self._say(Report("er", {"fb": Number(self.build.fb, 2), "st": 200,
-                                        "msg": f"Generic error - {line}"}))
+            if alarm or line.startswith("Error:") or line.startswith("!!"):
+                status, kind = (18, "System alarm") if alarm else (200, "Generic error")
+                self._say(Report("er", {"fb": Number(self.build.fb, 2), "st": status,
+                                        "msg": f"{kind} - {line}"}))
+                alarm = False
 
     def block_queue(self, seconds: float, nursery: trio.Nursery) -> None:
         async def hold() -> None:
@@ -208,7 +215,7 @@ class G2coreSession:
 
     # -- reading ----------------------------------------------------------------------------
     def _can_read_gcode(self) -> bool:
-        return (self._waiting is None and not self._blocked and not self.printer.halted
+        return (self._waiting is None and not self._blocked
                 and self.state.stat is not MachineState.HOLD
                 and self.printer.room(trio.current_time()) >= g2core.PLANNER_HEADROOM)
 
@@ -285,6 +292,9 @@ class G2coreSession:
         text, json_after = _to_model(self, line)
         if received.number is not None:
             self.state.line = received.number
+        if self.state.stat is MachineState.ALARM:  # alarm.cpp:106-112: refused, not run
+            self._respond({}, g2core.ALARMED, received.size)
+            return
         body: dict[str, OutValue] = {}
         jv = self.state.settings.jv
         if jv >= 5:
@@ -317,7 +327,8 @@ class G2coreSession:
                           else g2core.GCODE_COMMAND_UNSUPPORTED, received.size)
             return
         self._before_command(received.text)
-        if self.printer.halted:
+        if self.printer.halted:  # a fault on this very line: alarmed before it ran
+            self._respond({}, g2core.ALARMED, received.size)
             return
         run = CommandRun(self.printer, text, self.journal, lambda statement: None,
                          recorded=executed)
