@@ -12,7 +12,8 @@ than the 512-byte buffer is cut at 511 characters and the rest skipped.
 A data line's checksum, where it has one (`N<n> ... *<xor of every byte before *>`), is checked
 (gcode_parser.cpp:286-315): a mismatch is status 118, a matching one on a line without `N` 120;
 the line goes no further, and its answer is the session's (BadLine). Line numbers are never
-checked for sequence (see _data_line): a line that comes twice runs twice. The footer's third element is the bytes of
+checked for sequence (see _data_line): a line that comes twice runs twice. The last N word
+of a line is its number, wherever it is. The footer's third element is the bytes of
 the line just read: a data line's length + 1, a control's with its line ending(s)
 (json_parser.cpp:604-617, xio.cpp:759-788, 917-934); every event carries it as `size`.
 """
@@ -203,9 +204,12 @@ def _data_line(line: bytes, size: int) -> CommandReceived | BadLine:
     mismatch is 118; a match on a line not starting with `N` is 120. There is no line-number
     check: cm_check_linenum() runs only with gf.checksum set, and _parse_gcode_block() clears
     gf (its memset) after _verify_checksum() set it, so a line's N is never compared with the
-    last one (gcode_parser.cpp:661 and 949-951; master the same)."""
+    last one (gcode_parser.cpp:661 and 949-951; master the same).
+
+    N is a word like the others to the parser (gcode_parser.cpp:868, SET_NON_MODAL): anywhere in
+    the block outside a comment, and the last one is the line's number (`number`). The N words
+    are taken out of `text`, which is the G-code for the rest of the board."""
     text = line.decode("latin-1").lstrip(" \t")
-    number: int | None = None
     star = text.find("*")
     if star >= 0:
         if _strtol(text[star + 1:]) != xor8(text[:star].encode("latin-1")):
@@ -213,17 +217,39 @@ def _data_line(line: bytes, size: int) -> CommandReceived | BadLine:
         if not text.startswith("N"):
             return BadLine(g2core.MISSING_LINE_NUMBER, size)
         text = text[:star]
-    stripped = text.lstrip()
-    if stripped[:1] in ("N", "n"):
-        digits = ""
-        for char in stripped[1:]:
-            if not "0" <= char <= "9":  # (not str.isdigit: latin-1 has ² and ³)
-                break
-            digits += char
-        if digits:
-            number = int(digits)
-            text = stripped[1 + len(digits):]
+    text, number = _take_line_numbers(text)
     return CommandReceived(text.strip(), number, size)
+
+
+def _take_line_numbers(text: str) -> tuple[str, int | None]:
+    """`text` without its N words (outside comments: `( ... )`, and what follows `;` or `%`),
+    and the value of the last one (None: none)."""
+    out: list[str] = []
+    number: int | None = None
+    at, comment = 0, False
+    while at < len(text):
+        char = text[at]
+        if comment:
+            comment = char != ")"
+        elif char == "(":
+            comment = True
+        elif char in ";%":
+            out.append(text[at:])
+            break
+        elif char in "Nn":
+            digits_at = at + 1
+            while digits_at < len(text) and text[digits_at] in " \t":
+                digits_at += 1
+            end = digits_at
+            while end < len(text) and "0" <= text[end] <= "9":  # (not isdigit: latin-1 has ²)
+                end += 1
+            if end > digits_at:
+                number = int(text[digits_at:end])
+                at = end
+                continue
+        out.append(char)
+        at += 1
+    return "".join(out), number
 
 
 def _strtol(text: str) -> int:
