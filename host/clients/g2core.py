@@ -4,18 +4,19 @@
 from fake_marlin.host.codecs import g2core
 from fake_marlin.host.cores.g2core import G2coreCore
 from fake_marlin.host.shell import ClientOptions, StreamingClient
-from fake_marlin.wire.g2core import PLANNER_QUEUE_SIZE
 
 
 class G2coreClient(StreamingClient):
-    """g2core in line mode: `N<k>` lines, `window` of them in flight, one more per response
-    (see fake_marlin.host.cores.g2core). `send` and `print_commands` return once the board has
-    also run what they sent. `feedhold`, `resume` and `cancel` write g2core's `!`, `~` and ^D."""
+    """g2core, exactly once: `N<k> ...*<xor>` lines, one at a time, a lost one or a lost answer
+    found out and put right (see fake_marlin.host.cores.g2core); `window` is how many commands
+    the caller may queue ahead. `send` and `print_commands` return once the board has also run
+    what they sent. `feedhold`, `resume` and `cancel` write g2core's `!`, `~` and ^D."""
 
     protocol = "g2core"
-    # A response means the line was planned: the board's planner holds PLANNER_QUEUE_SIZE
-    # lines not yet run (a few more in its receive buffer are not answered yet).
-    acknowledged_ahead = PLANNER_QUEUE_SIZE
+    # A response means the line was planned, not run; but a g2core board (native USB) does not
+    # reset when a port is opened: it runs what it planned, whoever is connected. What a host
+    # that lost the port cannot know is the fate of the one line it had in flight.
+    acknowledged_ahead = 0
     check_command = staticmethod(g2core.check_command)
     _core: G2coreCore
 
