@@ -3,6 +3,7 @@ written out fails again the same way on its own, and the command runs end to end
 
 import json
 import os
+import re
 import subprocess
 import sys
 import tomllib
@@ -108,6 +109,34 @@ def test_a_failing_case_written_out_fails_again_alone_with_the_same_digest(tmp_p
     assert not row["passed"] and row["digest"] == result.digest
     failed = next(c for c in row["checks"] if not c["passed"])
     assert f"{failed['name']}: {failed['detail']}" == result.reason
+
+
+def test_g2core_cases_are_for_a_g2core_board_and_duplicate_only_its_answers(tmp_path):
+    """g2core never checks a line's number, so a line the wire duplicates runs twice on any
+    board, as one a host sends again does (fuzz.UNSEQUENCED): only answers are duplicated. One
+    line at a time is all a g2core host keeps in flight, so a disconnect may run one twice."""
+    assert "g2core" in fuzz.PROTOCOLS and "g2core" in fuzz.STREAMING
+    assert fuzz.in_flight("g2core", 300) == 1
+    kinds, garbage = set(), 0
+    for number in range(1, 81):
+        table = fuzz.generate("g2core", 5, number)
+        assert table["name"] == f"g2core-5-{number}"
+        assert table["printer"]["firmware"] == "g2core"
+        assert load(write(tmp_path, table)).printer.firmware == "g2core"
+        faults = table.get("fault", [])
+        for fault in faults:
+            if fault["kind"] == "duplicate":
+                assert fault["direction"] == "to-host"
+            if fault.get("pattern"):
+                assert fault["pattern"] == fuzz.ACK_PATTERNS["g2core"] == '^\\{"r"'
+            if fault["kind"] == "garbage" and fault["direction"] == "to-printer":
+                # No N word: g2core would take its number for the line's (NUMBERED_BY_ANY_LINE).
+                assert "length" not in fault and not re.search(r"[Nn]\s*\d", fault["text"])
+                garbage += 1
+        kinds.add(fuzz.case_kind(table))
+        if fuzz.case_kind(table) == "reconnect":
+            assert table["expect"]["duplicated_at_most"] == 1
+    assert kinds == {"exactly-once", "reconnect", "reset"} and garbage
 
 
 def test_another_firmware_meets_the_same_faults_under_a_name_of_its_own(tmp_path):

@@ -11,7 +11,7 @@ from fake_marlin.emulator.cli.parsing import Commands
 # scenario.fuzz.PROTOCOLS (tests/test_cli.py checks): written out here, as the imports of the
 # scenarios and their runner are kept inside the functions that run them, so that building the
 # parser, which every `fake-marlin` does, imports neither.
-FUZZ_PROTOCOLS = ("ultimaker", "marlin", "repetier", "commstack")
+FUZZ_PROTOCOLS = ("ultimaker", "marlin", "repetier", "commstack", "g2core")
 
 
 def scenario_files(paths: list[str]) -> list[Path]:
@@ -150,7 +150,7 @@ def _add_fuzz_parser(commands: Commands) -> argparse.ArgumentParser:
         "Files of earlier campaigns in DIR are overwritten by the same names, never removed.",
     )
     fuzz.add_argument("--protocol", required=True, choices=[*FUZZ_PROTOCOLS, "all"],
-                      help="the protocol to fuzz, or all four")
+                      help="the protocol to fuzz, or all of them")
     fuzz.add_argument("--firmware", default="marlin", metavar="NAME",
                       help="with --protocol marlin: the printer's firmware (default marlin); the "
                       "same faults for every firmware of one seed")

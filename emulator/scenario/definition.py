@@ -18,8 +18,8 @@ from fake_marlin.emulator.server.lifecycle import ServerConfig
 from fake_marlin.emulator import tables
 
 DIRECTIONS = ("to-printer", "to-host")
-PROTOCOLS = ("auto", "marlin", "ultimaker", "repetier", "commstack")
-HOST_PROTOCOLS = ("marlin", "ultimaker", "repetier", "commstack")
+PROTOCOLS = ("auto", "marlin", "ultimaker", "repetier", "commstack", "g2core")
+HOST_PROTOCOLS = ("marlin", "ultimaker", "repetier", "commstack", "g2core")
 OUTCOMES = ("completed", "failed")
 TRIGGER_KEYS = ("nth", "every", "at", "pattern", "probability")
 
