@@ -318,3 +318,12 @@ async def test_a_thermal_fault_is_an_alarm_that_refuses_lines_until_clear(autoju
         assert (await board.ask(b"{clear:n}\n"))["f"][1] == 0
         assert (await board.ask(b"N8G1X5\n"))["f"][1] == 0
         assert printer.journal == ["G1X5"]
+
+
+async def test_a_refused_code_takes_no_line_number(autojump_clock):
+    async with memory_printer(firmware="g2core", protocol="g2core") as printer:
+        board = Board(printer.open())
+        await board.ask(b"{jv:4}\n")
+        assert await board.ask(b"N5G1X1\n") == {"r": {"n": 5}, "f": [1, 0, 7]}
+        assert await board.ask(b"N6M9999\n") == {"r": {}, "f": [1, 132, 8]}
+        assert (await board.ask(b"{n:n}\n"))["r"]["n"] == 5

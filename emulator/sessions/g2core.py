@@ -290,6 +290,14 @@ class G2coreSession:
         if code in FLAVOUR_CODES or _has_word(line, "E"):
             self.flavour = Flavour.MARLIN  # from this line on, Marlin's meanings
         text, json_after = _to_model(self, line)
+        model_code = parse(text).code if text else ""
+        if (text and code not in MODAL_ONLY and code != "G4" and model_code[:1] in ("G", "M")
+                and model_code not in self.printer.handlers):
+            # gcode_parser.cpp:677-846: refused as it is parsed, before its line number is
+            # taken (929-930), so it never runs and its answer has no `n`
+            self._respond({}, g2core.MCODE_UNSUPPORTED if model_code[0] == "M"
+                          else g2core.GCODE_COMMAND_UNSUPPORTED, received.size)
+            return
         if received.number is not None:
             self.state.line = received.number
         if self.state.stat is MachineState.ALARM:  # alarm.cpp:106-112: refused, not run
@@ -319,12 +327,6 @@ class G2coreSession:
             self._respond(body, g2core.OK, received.size)
             if code in PROGRAM_END:
                 self._program_ends = True  # once the moves before it are done (it is queued)
-            return
-        model_code = parse(text).code
-        if model_code[:1] in ("G", "M") and model_code not in self.printer.handlers:
-            # gcode_parser.cpp:677-846: refused as it is parsed, so it never runs
-            self._respond(body, g2core.MCODE_UNSUPPORTED if model_code[0] == "M"
-                          else g2core.GCODE_COMMAND_UNSUPPORTED, received.size)
             return
         self._before_command(received.text)
         if self.printer.halted:  # a fault on this very line: alarmed before it ran
