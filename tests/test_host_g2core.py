@@ -1017,3 +1017,16 @@ def test_the_command_line_prints_and_sends_with_protocol_g2core(tmp_path, capsys
         assert pty.boards[0].lines == ["G21", "G1 X1 F600", "G1 X2"]
     out = capsys.readouterr().out.splitlines()
     assert '"commands": 3' in out[0] and out[1] == '{"posx":1.5}'
+
+
+def test_a_setting_that_reads_back_otherwise_is_set_again():
+    """{jv:4} damaged to {jv:5} on the way: the board says jv 5, and the host sets it again
+    (else it would take the board's jv 5 later for a restart)."""
+    core = G2coreCore()
+    assert core.poll(0.0) == [FENCE[0], SETUP_BYTES[0]]
+    answer(core, SETUP_ANSWERS["ej"])
+    assert core.poll(0.0) == [SETUP_BYTES[1]]
+    answer(core, wire.response({"jv": 5}, 0, 9))
+    assert core.poll(0.0) == [SETUP_BYTES[1]]  # {"jv":4} again
+    answer(core, SETUP_ANSWERS["jv"])
+    assert core.poll(0.0) == [SETUP_BYTES[2]]

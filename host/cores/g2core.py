@@ -136,6 +136,9 @@ SETUP = (
     ("qr", '{"qr":n}'),
     ("n", '{"n":n}'),
 )
+# What the host's settings must read back as (the rest of SETUP are questions).
+SETTINGS_WANTED = {"ej": 1, "jv": HOST_JV, "qv": 0, "sv": 1}
+MAX_SETUP_RETRIES = 8
 STATUS_REQUEST = '{"sr":n}'
 QUEUE_REQUEST = '{"qr":n}'
 CLEAR_REQUEST = '{"clear":n}'
@@ -237,6 +240,7 @@ class G2coreCore(CommandQueue):
         self.corrupt_frames = 0
         self._open_queue()
         self._setup_step = 0
+        self._setup_retries = 0
         self._line: _Line | None = None  # the job line whose fate is not known yet
         self._resolution: _Resolution | None = None
         self._generation = 0  # of the last fence written: the connect fence is generation 0
@@ -699,6 +703,16 @@ class G2coreCore(CommandQueue):
                 self._saw_room(room)
             if request.key == "n":
                 self._base = max(0, _integer(body.get("n")) or 0)
+            wanted = SETTINGS_WANTED.get(request.key)
+            if wanted is not None and _integer(body.get(request.key)) != wanted:
+                # The setting did not take as sent (a digit damaged on the way: {jv:5}): set
+                # it again, a few times at the most.
+                self._setup_retries += 1
+                if self._setup_retries > MAX_SETUP_RETRIES:
+                    raise PrinterNotResponding(
+                        f"the board keeps answering {request.text} with {response.text}")
+                return
+            self._setup_retries = 0
             self._setup_step += 1
             if self._setup_step == len(SETUP):
                 self.phase = Phase.READY
