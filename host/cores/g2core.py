@@ -703,8 +703,9 @@ class G2coreCore(CommandQueue):
                 self._saw_room(room)
             if request.key == "n":
                 self._base = max(0, _integer(body.get("n")) or 0)
-            wanted = SETTINGS_WANTED.get(request.key)
-            if wanted is not None and _integer(body.get(request.key)) != wanted:
+            key = request.key or ""
+            wanted = SETTINGS_WANTED.get(key)
+            if wanted is not None and _integer(body.get(key)) != wanted:
                 # The setting did not take as sent (a digit damaged on the way: {jv:5}): set
                 # it again, a few times at the most.
                 self._setup_retries += 1
