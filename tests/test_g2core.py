@@ -327,3 +327,13 @@ async def test_a_refused_code_takes_no_line_number(autojump_clock):
         assert await board.ask(b"N5G1X1\n") == {"r": {"n": 5}, "f": [1, 0, 7]}
         assert await board.ask(b"N6M9999\n") == {"r": {}, "f": [1, 132, 8]}
         assert (await board.ask(b"{n:n}\n"))["r"]["n"] == 5
+
+
+async def test_the_canary_line_reaches_marlins_protocol_as_it_came(autojump_clock):
+    async with memory_printer(firmware="g2core") as printer:
+        stream = printer.open()
+        await stream.send_all(b"N0 M110 N0*125\nN1 M105*38\n")
+        data = b""
+        while b"ok T:" not in data:
+            data += await stream.receive_some(4096)
+        assert printer.journal[:2] == ["M110 N0", "M105"]  # its N0 argument kept

@@ -92,6 +92,9 @@ class G2coreProtocol:
         self._skipping = False  # past the 511th character of a line: the rest is dropped
         self.reading_gcode = True  # the session's: whether the board reads a data line now
         self._out = bytearray()
+        # The data line read last, as it came (N words, checksum and all): what a connection
+        # that switches to Marlin's protocol on it hands over.
+        self.last_line = b""
 
     def receive_data(self, data: bytes) -> None:
         self._buffer += data
@@ -152,6 +155,7 @@ class G2coreProtocol:
             return self._controls.popleft()
         if self._data and self.reading_gcode:
             line, size = self._data.popleft()
+            self.last_line = line
             return _data_line(line, size)
         return None
 

@@ -369,8 +369,7 @@ class G2coreSession:
         marlin = self._marlin = self._make_marlin()
         marlin.boot()
         self._marlin_started.set()
-        line = received.text if received.number is None else f"N{received.number} {received.text}"
-        marlin.feed(line.encode() + b"\n" + self.protocol.take_unread())
+        marlin.feed(self.protocol.last_line + b"\n" + self.protocol.take_unread())
 
 
     # -- its own time -----------------------------------------------------------------------
