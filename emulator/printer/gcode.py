@@ -44,6 +44,16 @@ _COMMAND_START = re.compile(r"\s*(?:N-?\d+\s*)?(?=[A-Za-z])")
 _WORD_COMMAND = re.compile(r"[A-Za-z][A-Za-z_][A-Za-z0-9_]*(?![.\d])")
 
 
+LONG_MIN, LONG_MAX = -(2**31), 2**31 - 1  # an AVR's long: what strtol() clamps a number to
+
+
+def whole(value: float) -> int:
+    """parser.value_int() of a number: strtol's, clamped to a long (inf and 1e400 are no int)."""
+    if value != value:  # NaN
+        return 0
+    return int(max(LONG_MIN, min(LONG_MAX, value)))
+
+
 def parse(line: str) -> Command:
     text = strip_comment(line)
     start = _COMMAND_START.match(text)

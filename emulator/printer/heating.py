@@ -3,6 +3,7 @@
 from dataclasses import dataclass
 
 from fake_marlin.emulator.printer.failures import thermal_error
+from fake_marlin.emulator.printer import gcode
 from fake_marlin.emulator.printer.gcode import Command
 from fake_marlin.emulator.printer.statements import Heat, Statement, state
 from fake_marlin.emulator.printer.steps import Reply, Report, Sleep, reply
@@ -50,20 +51,10 @@ def temperature_report(printer, now: float, tool: int | None = None,
     return Statement(key, heats(printer, now, tool))
 
 
-LONG_MAX = 2**31 - 1  # an AVR's long: what strtol() clamps a number too long for it to
-
-
-def whole(value: float) -> int:
-    """parser.value_int() of a number: strtol's, clamped to a long (inf and 1e400 are no int)."""
-    if value != value:  # NaN
-        return 0
-    return int(max(-LONG_MAX - 1, min(LONG_MAX, value)))
-
-
 def target_tool(printer, command: Command) -> int | Reply:
     """The hotend a command's T word names (the active one without it), or the refusal."""
     tool = command.value("T")
-    tool = printer.active_tool if tool is None else whole(tool)
+    tool = printer.active_tool if tool is None else gcode.whole(tool)
     if 0 <= tool < len(printer.hotends):
         return tool
     return reply(state("invalid_extruder", code=command.code, tool=tool))
@@ -162,7 +153,7 @@ def auto_report_temperatures(printer, command: Command, now: float):
 
 
 def set_fan(printer, command: Command, now: float):
-    fan = whole(command.value("P", 0.0))
+    fan = gcode.whole(command.value("P", 0.0))
     if 0 <= fan < len(printer.fans):
         speed = 0.0 if command.code == "M107" else command.value("S", 255.0)
         printer.fans[fan] = int(max(0.0, min(255.0, speed)))

@@ -17,6 +17,7 @@ from pathlib import Path
 
 from fake_marlin.emulator.printer import (
     eeprom,
+    gcode,
     heating,
     host_actions,
     klipper,
@@ -297,7 +298,7 @@ class Printer:
             self.heating_cancelled = True
             host_actions.user_continues(self)
         elif command.code == "M876":
-            host_actions.respond(self, heating.whole(command.value("S", 0.0)))
+            host_actions.respond(self, gcode.whole(command.value("S", 0.0)))
         elif command.code == "M112":
             return self.kill(state("m112_shutdown"), now)
         elif command.code == "M410":

@@ -5,7 +5,7 @@ While it is locked every command but M511 is refused (Printer.execute asks `refu
 included; commands the emergency parser takes still act. PASSWORD_LENGTH is 4 digits.
 """
 
-from fake_marlin.emulator.printer import heating
+from fake_marlin.emulator.printer import gcode
 from fake_marlin.emulator.printer.gcode import Command
 from fake_marlin.emulator.printer.statements import state
 from fake_marlin.emulator.printer.steps import Reply, reply
@@ -16,7 +16,7 @@ PASSWORD_LENGTH = 4
 def _entered(command: Command, letter: str) -> int:
     # parser.ulongval(): the digits as a number (missing: 0), so 0042 is 42.
     value = command.value(letter)
-    return heating.whole(value) if value is not None else 0
+    return gcode.whole(value) if value is not None else 0
 
 
 def refused(printer, command: Command) -> Reply | None:

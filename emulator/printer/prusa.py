@@ -15,7 +15,7 @@ import re
 import struct
 from dataclasses import dataclass, field
 
-from fake_marlin.emulator.printer import motion
+from fake_marlin.emulator.printer import gcode, motion
 from fake_marlin.emulator.printer.failures import HEATER_FAULT, thermal_error
 from fake_marlin.emulator.printer.gcode import Command, parse
 from fake_marlin.emulator.printer.heating import WATCH_TEMP_INCREASE, WATCH_TEMP_PERIOD
@@ -318,7 +318,6 @@ def _int16(value: int) -> int:
 _STRTOD = re.compile(r"\s*([-+]?(?:(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?|inf(?:inity)?|nan))",
                      re.IGNORECASE)
 _STRTOL = re.compile(r"\s*([-+]?\d+)")
-_LONG_MIN, _LONG_MAX = -(2 ** 31), 2 ** 31 - 1  # a long on the AVR: 32 bits
 
 
 def _number(text: str, letter: str) -> float | None:
@@ -438,7 +437,7 @@ def _strtol(text: str, base: int) -> int:
     else:
         found = _STRTOL.match(text)
         value = int(found[1]) if found else 0
-    return max(_LONG_MIN, min(_LONG_MAX, value))
+    return max(gcode.LONG_MIN, min(gcode.LONG_MAX, value))
 
 
 def _parse_hex(text: str, limit: int) -> tuple[bytes, bool]:

@@ -14,7 +14,7 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from fake_marlin.emulator.printer import host_actions
+from fake_marlin.emulator.printer import gcode, host_actions
 from fake_marlin.emulator.printer.gcode import Command
 from fake_marlin.emulator.printer.statements import Statement, state
 from fake_marlin.emulator.printer.steps import reply
@@ -282,9 +282,6 @@ class SdCard:
         return state("not_sd_printing")
 
 
-_LONG_MAX = 2 ** 31 - 1
-
-
 def _no_media(printer) -> bool:
     return not printer.sd.mounted
 
@@ -348,7 +345,7 @@ def pause_print(printer, command: Command, now: float):
 
 def set_position(printer, command: Command, now: float):
     if printer.sd.selected is not None:  # setIndex(parser.value_long()): strtol's range
-        printer.sd.selected.position = int(max(0.0, min(command.value("S", 0.0), _LONG_MAX)))
+        printer.sd.selected.position = max(0, gcode.whole(command.value("S", 0.0)))
     return reply()
 
 

@@ -1,6 +1,6 @@
 """System G-codes: identity (M115), messages (M117/M118), debug, halt and host prompts."""
 
-from fake_marlin.emulator.printer import heating
+from fake_marlin.emulator.printer import gcode
 from fake_marlin.emulator.printer.gcode import Command
 from fake_marlin.emulator.printer.statements import state
 from fake_marlin.emulator.printer.steps import reply
@@ -15,7 +15,7 @@ def firmware_info(printer, command: Command, now: float):
 
 def debug_level(printer, command: Command, now: float):
     if command.has("S"):
-        printer.debug_flags = heating.whole(command.value("S", 0.0)) & 0xFF
+        printer.debug_flags = gcode.whole(command.value("S", 0.0)) & 0xFF
     names = [name for bit, name in enumerate(DEBUG_FLAGS) if printer.debug_flags & (1 << bit)]
     return reply(state("debug_flags", flags=",".join(names) if names else "OFF"))
 
