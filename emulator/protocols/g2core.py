@@ -109,7 +109,7 @@ class G2coreProtocol:
                 self._skipping = False
                 continue
             if self._skipping:
-                end = _find_end(buffer)
+                end = find_end(buffer)
                 if end is None:
                     buffer.clear()
                     return
@@ -121,7 +121,7 @@ class G2coreProtocol:
                     del buffer[0]
                 self._controls.append(SingleCharacter(first))
                 continue
-            end = _find_end(buffer)
+            end = find_end(buffer)
             if end is None:
                 if len(buffer) >= RX_BUFFER_SIZE - 1:  # cut at 511; the rest is skipped
                     self._take_line(bytes(buffer[:RX_BUFFER_SIZE - 1]), RX_BUFFER_SIZE - 1)
@@ -195,8 +195,9 @@ class G2coreProtocol:
         return data
 
 
-def _find_end(buffer: bytearray) -> int | None:
-    ends = [at for at in (buffer.find(b"\n"), buffer.find(b"\r")) if at >= 0]
+def find_end(data: bytes | bytearray, start: int = 0) -> int | None:
+    """Where the first line end (CR or LF) from `start` is; None while none has come."""
+    ends = [at for at in (data.find(b"\n", start), data.find(b"\r", start)) if at >= 0]
     return min(ends) if ends else None
 
 

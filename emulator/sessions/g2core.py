@@ -27,6 +27,7 @@ from fake_marlin.emulator.protocols.g2core import (
     BadRequest,
     G2coreProtocol,
     JsonRequest,
+    find_end,
     Report,
     Response,
     SingleCharacter,
@@ -127,7 +128,7 @@ class G2coreSession:
         held = self._marlin_held + data
         passed = bytearray()
         start = 0
-        while (end := _line_end(held, start)) is not None:
+        while (end := find_end(held, start)) is not None:
             line = held[start:end + 1]
             if line.lstrip()[:1] == b"{":
                 self._marlin_json(bytes(passed), line)
@@ -467,11 +468,6 @@ def _status(reply: Reply, code: str) -> int:
             return g2core.MCODE_UNSUPPORTED if code.startswith("M") else (
                 g2core.GCODE_COMMAND_UNSUPPORTED)
     return g2core.OK
-
-
-def _line_end(data: bytes, start: int) -> int | None:
-    ends = [at for at in (data.find(b"\n", start), data.find(b"\r", start)) if at >= 0]
-    return min(ends) if ends else None
 
 
 def normalize_gcode(text: str) -> str:
