@@ -2,6 +2,7 @@
 text lines, `RawPort` the exact bytes."""
 
 import re
+from contextlib import asynccontextmanager
 
 import trio
 
@@ -114,3 +115,19 @@ def numbered(n: int, command: str) -> str:
 
     body = f"N{n} {command}"
     return f"{body}*{xor_checksum(body)}"
+
+
+@asynccontextmanager
+async def greeted_printer(firmware: str, greeting: bytes, tmp_path=None, protocol: str = "marlin"):
+    """A printer in memory of `firmware` (an SD card in tmp_path/sd where given) and a RawPort
+    on it that has read the board's `greeting`, up to its `echo:SD card ok`."""
+    from fake_marlin.testing import memory_printer
+
+    options: dict = {"firmware": firmware, "protocol": protocol}
+    if tmp_path is not None:
+        (tmp_path / "sd").mkdir()
+        options["sd_dir"] = tmp_path / "sd"
+    async with memory_printer(**options) as printer:
+        port = RawPort(printer.open())
+        assert await port.read_until(b"echo:SD card ok\n") == greeting
+        yield port, printer

@@ -2,13 +2,12 @@
 in memory on trio's autojump clock: what a host hears from `--firmware marlin-1.1`."""
 
 import re
-from contextlib import asynccontextmanager
 
 import trio
 
 from fake_marlin.emulator.faults.rules import FaultKind, FaultRule, Trigger
 from fake_marlin.testing import memory_printer
-from tests.terminal import RawPort, numbered
+from tests.terminal import RawPort, greeted_printer, numbered
 
 REPORT = [
     b"echo:  G21    ; (mm)",
@@ -55,16 +54,8 @@ IDLE = b"ok T:21.00 /0.00 B:21.00 /0.00 @:0 B@:0\n"
 KILLED = b"Error:Printer halted. kill() called!\n"
 
 
-@asynccontextmanager
-async def marlin_1_1(tmp_path=None):
-    options: dict = {"firmware": "marlin-1.1", "protocol": "marlin"}
-    if tmp_path is not None:
-        (tmp_path / "sd").mkdir()
-        options["sd_dir"] = tmp_path / "sd"
-    async with memory_printer(**options) as printer:
-        port = RawPort(printer.open())
-        assert await port.read_until(b"echo:SD card ok\n") == GREETING
-        yield port, printer
+def marlin_1_1(tmp_path=None):
+    return greeted_printer("marlin-1.1", GREETING, tmp_path)
 
 
 async def test_the_greeting_has_echo_before_the_reset_a_blank_line_and_the_settings(autojump_clock):

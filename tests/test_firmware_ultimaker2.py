@@ -2,14 +2,13 @@
 trio's autojump clock: what a host hears from `--firmware ultimaker2`."""
 
 import re
-from contextlib import asynccontextmanager
 
 import trio
 
 from fake_marlin.emulator.faults.rules import FaultKind, FaultRule, Trigger
 from fake_marlin.emulator.printer.planner import MAX_MOVES
 from fake_marlin.testing import memory_printer
-from tests.terminal import RawPort, numbered
+from tests.terminal import RawPort, greeted_printer, numbered
 
 SETTINGS = [
     b"echo:Steps per unit:",
@@ -48,16 +47,8 @@ STOPPED = (b"Printer stopped due to errors. Fix the error and use M999 to restar
            b"(Temperature is reset. Set it after restarting)")
 
 
-@asynccontextmanager
-async def ultimaker2(tmp_path=None, protocol: str = "marlin"):
-    options: dict = {"firmware": "ultimaker2", "protocol": protocol}
-    if tmp_path is not None:
-        (tmp_path / "sd").mkdir()
-        options["sd_dir"] = tmp_path / "sd"
-    async with memory_printer(**options) as printer:
-        port = RawPort(printer.open())
-        assert await port.read_until(b"echo:SD card ok\n") == GREETING
-        yield port, printer
+def ultimaker2(tmp_path=None, protocol: str = "marlin"):
+    return greeted_printer("ultimaker2", GREETING, tmp_path, protocol)
 
 
 async def test_the_greeting_is_marlin_1_0s_and_comes_with_every_open(autojump_clock):
