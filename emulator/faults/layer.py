@@ -15,7 +15,10 @@ from dataclasses import dataclass, field
 from enum import Enum
 
 from fake_marlin.emulator.faults.rules import FaultKind, FaultPlan, FaultRule, stream_random
-from fake_marlin.wire import commstack, marlin_binary, repetier, stk500, ultimaker, undetected
+from fake_marlin.wire import (
+    commstack, marlin_binary, repetier, stk500, ultimaker, ultimaker_variants, undetected,
+)
+from fake_marlin.wire.ultimaker_variants import PLAIN, Variants
 from fake_marlin.wire.framing import Framer, split_units
 from fake_marlin.wire.lines import LINES
 
@@ -125,6 +128,7 @@ class FaultLayer:
         self._partial = {direction: b"" for direction in Direction}
         self._link_rules = {d: self.plan.link_rules(d.value) for d in Direction}
         self._framers = self._framers_for(None)
+        self.data_bits = 8  # bits per character on the line, of which bit errors flip one
         self._update_quiet()
         # Told of every fault as it fires (the trace): kind, direction, count, unit.
         self.on_fault: Callable[[str, str, int | None, bytes | None], None] | None = None
@@ -139,11 +143,17 @@ class FaultLayer:
             self.config.to_host.active
         )
 
-    def set_protocol(self, protocol: str | None) -> None:
-        """The protocol the connection speaks from now on (None or "auto": not known yet).
+    def set_protocol(self, protocol: str | None, variants: Variants = PLAIN) -> None:
+        """The protocol the connection speaks from now on (None or "auto": not known yet),
+        with the protocol lab's variants (Ultimaker only): their packets are the units, and
+        a 7-bit line flips one of 7 bits.
 
         Bytes of a unit not yet complete are framed anew by the new protocol's framer."""
         self._framers = self._framers_for(None if protocol == "auto" else protocol)
+        if protocol == "ultimaker" and not variants.plain:
+            self._framers[Direction.TO_PRINTER] = ultimaker_variants.to_printer_units(
+                variants.packet)
+        self.data_bits = variants.data_bits
 
     @staticmethod
     def _framers_for(protocol: str | None) -> dict[Direction, Framer]:
@@ -234,7 +244,8 @@ class FaultLayer:
             if self.on_fault is not None and stats.lines_corrupted > corrupted:
                 self.on_fault("corrupt-lines", direction.value, stats.lines_corrupted - corrupted,
                               None)
-        byte_error_rate = 1.0 - (1.0 - faults.bit_error_rate) ** 8
+        bits = self.data_bits
+        byte_error_rate = 1.0 - (1.0 - faults.bit_error_rate) ** bits
         draw = self._byte_random[direction]
         out = bytearray()
         flipped = 0
@@ -242,7 +253,7 @@ class FaultLayer:
             if faults.drop_rate and draw.random() < faults.drop_rate:
                 continue
             if byte_error_rate and draw.random() < byte_error_rate:
-                byte ^= 1 << draw.randrange(8)
+                byte ^= 1 << draw.randrange(bits)
                 flipped += 1
             out.append(byte)
         if self.on_fault is not None:

@@ -2,7 +2,7 @@
 
 Each direction is a Pipe that delivers bytes in order (a serial line never reorders), no
 sooner than latency plus jitter after they were sent, and no faster than the baud rate
-allows: each byte costs 10 bit times (start, 8 data, stop). With nothing configured and
+allows: each byte costs 10 bit times (start, 8 data, stop), 9 on a 7-bit line. With nothing configured and
 no stall pending, bytes pass straight through.
 """
 
@@ -20,6 +20,7 @@ class LinkConditions:
     baud: int | None = None  # None: no pacing
     latency: float = 0.0  # seconds, fixed part
     jitter: float = 0.0  # seconds, up to this much more, uniformly
+    data_bits: int = 8  # per character; with a start and a stop bit around them
 
     @property
     def active(self) -> bool:
@@ -55,7 +56,7 @@ class Pipe:
                     self._free_at)
         if pause:
             start = max(start, now + pause)
-        byte_time = 10 / self.baud if self.baud else 0.0
+        byte_time = (self.conditions.data_bits + 2) / self.baud if self.baud else 0.0
         self._free_at = start + len(data) * byte_time
         self._queue.append((start, byte_time, data))
         self._changed.set()

@@ -3,7 +3,9 @@
 Bytes from the host go in through receive_data(); next_event() yields the commands they carry.
 What the printer says goes out through send(event) (frames, response data, out-of-band lines)
 and data_to_send() (the automatic ProtoError + `r` answers to bad packets).
-Mirrors UltimakerMarlin's SerialProtocol::readCommand byte for byte.
+Mirrors UltimakerMarlin's SerialProtocol::readCommand byte for byte; with `variants` (the
+protocol lab's, wire/ultimaker_variants.py) it reads and says what docs/protocols.md section 1.1
+lays down instead, and plain v3 stays as it was.
 """
 
 from dataclasses import dataclass
@@ -12,6 +14,8 @@ from enum import Enum, auto
 
 from fake_marlin.emulator.protocols.base import CommandDone, CommandReceived, Output
 from fake_marlin.wire import ultimaker as wire
+from fake_marlin.wire import ultimaker_variants as lab
+from fake_marlin.wire.ultimaker_variants import PLAIN, Variants
 
 
 class ReceiverState(Enum):
@@ -22,6 +26,7 @@ class ReceiverState(Enum):
     WAIT_FOR_PAYLOAD = auto()
     WAIT_FOR_CRC_HIGH = auto()
     WAIT_FOR_CRC_LOW = auto()
+    WAIT_FOR_CHECK = auto()  # a variant's check, one or more bytes
 
 
 class RejectReason(Enum):
@@ -67,9 +72,20 @@ class OutOfBand:
 EventIn = CommandDone | RoomChanged | OutOfBand | Output
 
 
+_COMPACT = {  # compact-oob's prefixes for each out-of-band kind
+    OutOfBandKind.LOG: lab.COMPACT_PREFIXES["LOG"],
+    OutOfBandKind.ERROR: lab.COMPACT_PREFIXES["Error"],
+    OutOfBandKind.WARNING: lab.COMPACT_PREFIXES["WARNING"],
+}
+
+
 class UltimakerProtocol:
-    def __init__(self, queue_size: int = 8) -> None:
+    def __init__(self, queue_size: int = 8, variants: Variants = PLAIN) -> None:
         self.queue_size = queue_size
+        self.variants = variants
+        self.format = variants.packet
+        self._v3 = self.format.is_v3
+        self._check = bytearray()
         self.expected_seq = 0
         self.state = ReceiverState.WAIT_FOR_HEADER_BYTE
         self.room = wire.PLANNER_ROOM_MAX
@@ -92,13 +108,13 @@ class UltimakerProtocol:
         position = 0
         try:
             while position < len(self._input):
-                if (self.state is ReceiverState.WAIT_FOR_HEADER_BYTE  # (not inside a packet)
+                if (self._v3 and self.state is ReceiverState.WAIT_FOR_HEADER_BYTE
                         and (whole := self._whole_packet(position)) is not None):
                     position, received = whole
                     return received
                 byte = self._input[position]
                 position += 1
-                event = self._step(byte)
+                event = self._step(byte) if self._v3 else self._step_variant(byte)
                 if event is not None:
                     if isinstance(event, PacketRejected):
                         # requestResend(): the firmware flushes whatever is still in its RX buffer.
@@ -125,6 +141,8 @@ class UltimakerProtocol:
             return None
         self._queued += 1
         seq, self.expected_seq = self.expected_seq, wire.next_seq(self.expected_seq)
+        if self.variants.ack:
+            self._output += self._frame(lab.ACK_KIND, seq)
         return end, CommandReceived(payload.decode("ascii"), seq)
 
     def _step(self, byte: int) -> Event | None:
@@ -196,11 +214,96 @@ class UltimakerProtocol:
             )
         self._queued += 1
         self.expected_seq = wire.next_seq(self.expected_seq)
+        if self.variants.ack:
+            self._output += self._frame(lab.ACK_KIND, self._seq)
+        return CommandReceived(payload.decode("ascii"), self._seq)
+
+    def _step_variant(self, byte: int) -> Event | None:
+        """_step() for a variant's packets (docs/protocols.md section 1.1)."""
+        state = self.state
+        S = ReceiverState
+        packet = self.format
+        if byte == packet.start:
+            if state is S.WAIT_FOR_HEADER_BYTE or state is S.WAIT_FOR_SEQUENCE_NUMBER and (
+                    packet.starts == 1):
+                # The first start byte, or (one start byte) more of a run: a run syncs.
+                self.state = S.WAIT_FOR_SEQUENCE_NUMBER if packet.starts == 1 else (
+                    S.WAIT_FOR_SECOND_HEADER_BYTE)
+                return None
+            if state is S.WAIT_FOR_SECOND_HEADER_BYTE or state is S.WAIT_FOR_SEQUENCE_NUMBER:
+                self.state = S.WAIT_FOR_SEQUENCE_NUMBER
+                return None
+            if packet.armored or state in (S.WAIT_FOR_PAYLOAD_SIZE, S.WAIT_FOR_PAYLOAD):
+                # A new packet starts: the start byte is no byte of a packet's body (armored),
+                # or not of a length or payload (crc8's 0xFF, as BREAK_ON_HEADER_BYTE).
+                self.state = S.WAIT_FOR_SEQUENCE_NUMBER if packet.starts == 1 else (
+                    S.WAIT_FOR_SECOND_HEADER_BYTE)
+                return None
+        if state is S.WAIT_FOR_HEADER_BYTE:
+            return None
+        if state is S.WAIT_FOR_SECOND_HEADER_BYTE:
+            self.state = S.WAIT_FOR_HEADER_BYTE
+            return None
+        if state is S.WAIT_FOR_SEQUENCE_NUMBER:
+            seq = packet.read_seq(byte)
+            if seq != self.expected_seq:
+                return self._reject(
+                    RejectReason.UNEXPECTED_SEQUENCE,
+                    "Sequence number is unexpected (received, expected): "
+                    f"{byte if seq is None else seq},{self.expected_seq}",
+                )
+            self._seq = seq
+            self.state = S.WAIT_FOR_PAYLOAD_SIZE
+            return None
+        if state is S.WAIT_FOR_PAYLOAD_SIZE:
+            length = packet.read_len(byte)
+            if not 1 <= length <= wire.MAX_PAYLOAD:
+                return self._reject(
+                    RejectReason.BAD_LENGTH,
+                    f"Payload size is too big for packet with sequence number: {self.expected_seq}",
+                )
+            self._length = length
+            self._payload.clear()
+            self.state = S.WAIT_FOR_PAYLOAD
+            return None
+        if state is S.WAIT_FOR_PAYLOAD:
+            if not wire.PAYLOAD_MIN_BYTE <= byte <= wire.PAYLOAD_MAX_BYTE:
+                return self._reject(
+                    RejectReason.ILLEGAL_BYTE,
+                    f"Payload byte not in acceptable (ASCII) range at position #{len(self._payload)}",
+                )
+            self._payload.append(byte)
+            if len(self._payload) == self._length:
+                self._check.clear()
+                self.state = S.WAIT_FOR_CHECK
+            return None
+        # WAIT_FOR_CHECK
+        self._check.append(byte)
+        if len(self._check) < packet.check_chars:
+            return None
+        self.state = S.WAIT_FOR_HEADER_BYTE
+        payload = bytes(self._payload)
+        if packet.read_check(bytes(self._check)) != packet.check(self._seq, payload):
+            return self._reject(
+                RejectReason.CHECKSUM_MISMATCH,
+                f"Checksum mismatch for packet with sequence number: {self.expected_seq}",
+            )
+        if self._queued >= self.queue_size:
+            return self._reject(
+                RejectReason.QUEUE_FULL,
+                "Received packet could not be handled (buffer full), packet with sequence number: "
+                f"{self.expected_seq}",
+            )
+        self._queued += 1
+        self.expected_seq = packet.next_seq(self.expected_seq)
+        if self.variants.ack:
+            self._output += self._frame(lab.ACK_KIND, self._seq)
         return CommandReceived(payload.decode("ascii"), self._seq)
 
     def _reject(self, reason: RejectReason, message: str) -> PacketRejected:
         self.state = ReceiverState.WAIT_FOR_HEADER_BYTE
-        self._output += f"\nProtoError:{message}\n".encode("ascii")
+        prefix = lab.COMPACT_PREFIXES["ProtoError"] if self.variants.compact_oob else "\nProtoError:"
+        self._output += f"{prefix}{message}\n".encode("ascii")
         self._output += self._frame("r", self.expected_seq)
         return PacketRejected(reason, message, self.expected_seq)
 
@@ -214,16 +317,17 @@ class UltimakerProtocol:
             if event.room is not None:
                 self.room = event.room
             for line in event.response:
-                self._output += f"{line}\n".encode("ascii", "replace")
+                self._output += self._response_line(line)
             self._output += self._frame("o", event.number)
         elif isinstance(event, RoomChanged):
             self.room = event.room
             if self.reported_room == 0 and event.room > 0:
                 self._output += self._frame("q", 0)
         elif isinstance(event, OutOfBand):
-            self._output += f"{event.kind.value}{event.text}\n".encode("ascii", "replace")
+            prefix = _COMPACT[event.kind] if self.variants.compact_oob else event.kind.value
+            self._output += f"{prefix}{event.text}\n".encode("ascii", "replace")
         elif isinstance(event, Output):
-            self._output += f"{event.text}\n".encode("ascii", "replace")
+            self._output += self._response_line(event.text)
         else:
             raise TypeError(f"cannot send {event!r}")
         return self.data_to_send()
@@ -232,6 +336,9 @@ class UltimakerProtocol:
         data = bytes(self._output)
         self._output.clear()
         return data
+
+    def _response_line(self, text: str) -> bytes:
+        return f"{lab.response_line(text, self.variants)}\n".encode("ascii", "replace")
 
     def _frame(self, kind: str, seq: int) -> bytes:
         self.reported_room = self.room

@@ -27,7 +27,9 @@ from fake_marlin.emulator.sessions.stk500 import Stk500Session
 from fake_marlin.emulator.sessions.ultimaker import UltimakerSession
 from fake_marlin.emulator.trace.tap import PrinterSampler, TracedJournal, watch_rejects
 from fake_marlin.emulator.trace.writer import Trace
+from fake_marlin.wire.ultimaker_variants import PLAIN, Variants
 
+SEVEN_BITS = bytes(byte & 0x7F for byte in range(256))  # what a 7-bit UART reads of a byte
 PROTOCOLS = ("auto", "marlin", "ultimaker", "repetier", "commstack", "g2core")
 
 
@@ -40,6 +42,14 @@ class ServerConfig:
     faults: FaultConfig = FaultConfig()
     conditions: LinkConditions = LinkConditions()
     baud_from_host: bool = False  # pace at the baud rate the host set on the port
+    # The protocol lab's variants of Ultimaker's protocol (wire/ultimaker_variants.py); only
+    # with protocol "ultimaker": auto-detection never guesses one.
+    variants: Variants = PLAIN
+
+    def __post_init__(self) -> None:
+        if not self.variants.plain and self.protocol != "ultimaker":
+            raise ValueError(f"protocol variants ({self.variants}) are Ultimaker's: they need "
+                             f"protocol ultimaker, not {self.protocol}")
 
 
 class PrinterServer:
@@ -75,8 +85,12 @@ class PrinterServer:
             self.journal = TracedJournal(journal, trace, self._sampler)
             self._deliver = self._traced_deliver
             self.faults.on_fault = trace.fault
-        self._to_printer = Pipe(self._feed_session, config.conditions, config.faults.seed)
-        self._to_host = Pipe(self._deliver, config.conditions, config.faults.seed + 1)
+        # A 7-bit line (the 7bit variant): 9 bit times a character, and the printer's UART
+        # keeps 7 bits of each.
+        conditions = dataclasses.replace(config.conditions, data_bits=config.variants.data_bits)
+        self._seven_bit = config.variants.data_bits == 7
+        self._to_printer = Pipe(self._feed_session, conditions, config.faults.seed)
+        self._to_host = Pipe(self._deliver, conditions, config.faults.seed + 1)
         self._restarts_in, self._restarts = trio.open_memory_channel[str](16)
         self._restart_pending = False  # a reset asked for that has not begun
         self._nursery: trio.Nursery | None = None
@@ -193,7 +207,8 @@ class PrinterServer:
 
     def _new_protocol_session(self, protocol: str, reason: str) -> Session:
         # Unit faults act on this protocol's units from now on, both ways.
-        self.faults.set_protocol(protocol)
+        self.faults.set_protocol(
+            protocol, self.config.variants if protocol == "ultimaker" else PLAIN)
         if protocol == "stk500":
             # LEAVE starts the firmware, whose protocol the bytes after it choose (on a g2core
             # board, Marlin's: a host that probed the bootloader is a Marlin host).
@@ -208,7 +223,7 @@ class PrinterServer:
         if protocol == "ultimaker":
             return UltimakerSession(
                 self.printer, self.journal, self._send, self.config.ultimaker_queue_size,
-                self._before_command, firmware,
+                self._before_command, firmware, self.config.variants,
             )
         if protocol == "repetier":
             return RepetierSession(
@@ -264,6 +279,8 @@ class PrinterServer:
     def _feed_session(self, data: bytes) -> None:
         # Bytes that arrive while the printer is still booting are lost, as on a real board.
         if self._session is not None and data:
+            if self._seven_bit:
+                data = data.translate(SEVEN_BITS)
             if self._sampler is not None:
                 self._sampler.trace.bytes_in(data)
                 self._sampler.reading = True

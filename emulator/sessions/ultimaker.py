@@ -18,6 +18,7 @@ from fake_marlin.emulator.protocols.ultimaker import (
     RoomChanged,
     UltimakerProtocol,
 )
+from fake_marlin.wire.ultimaker_variants import PLAIN, Variants, announcement
 from fake_marlin.emulator.sessions.driver import CommandRun, finish, hold_queue_full
 
 
@@ -30,13 +31,14 @@ class UltimakerSession:
         queue_size: int = 8,
         before_command: Callable[[str], None] = lambda text: None,
         firmware: Firmware | None = None,
+        variants: Variants = PLAIN,
     ) -> None:
         self.printer = printer
         self._words = (firmware or Firmware.make()).words
         self.journal = journal
         self._send = send
         self._before_command = before_command
-        self.protocol = UltimakerProtocol(queue_size)
+        self.protocol = UltimakerProtocol(queue_size, variants)
         self._backlog: deque[CommandReceived] = deque()  # received while a command waits
         self._waiting: tuple[CommandReceived, CommandRun, float] | None = None
         self._executor_idle = False  # until the executor task runs
@@ -45,6 +47,11 @@ class UltimakerSession:
 
     def boot(self) -> None:
         self._send(self.protocol.send(OutOfBand(OutOfBandKind.LOG, "Marlin started")))
+        if not self.protocol.variants.plain:
+            # The lab's variants say so at once, so that a host without them knows why it
+            # cannot be understood (docs/protocols.md section 1.1).
+            self._send(self.protocol.send(
+                OutOfBand(OutOfBandKind.LOG, announcement(self.protocol.variants))))
         self._update_room()
 
     def feed(self, data: bytes) -> None:
