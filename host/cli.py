@@ -13,6 +13,7 @@ from fake_marlin.host.codecs import g2core, marlin, ultimaker
 from fake_marlin.host.connect import DEFAULT_BAUDRATE, PROTOCOLS, load_job, open_printer
 from fake_marlin.host.errors import HostError, RemoteError
 from fake_marlin.host.shell import ClientOptions, sole_exception
+from fake_marlin.wire.ultimaker_variants import NAMES, PLAIN, VariantError, Variants, parse_variants
 
 
 def _positive(kind):
@@ -26,6 +27,13 @@ def _positive(kind):
         return value
 
     return parse
+
+
+def _variants(text: str) -> Variants:
+    try:
+        return parse_variants(text)
+    except VariantError as error:
+        raise argparse.ArgumentTypeError(str(error)) from None
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -51,6 +59,11 @@ def build_parser() -> argparse.ArgumentParser:
     )
     common.add_argument(
         "--retries", type=_positive(int), default=8, help="transmissions of one packet before giving up"
+    )
+    common.add_argument(
+        "--variant", type=_variants, default=PLAIN, metavar="NAME[,NAME]",
+        help="the protocol lab's variants of Ultimaker's protocol, as the printer was given "
+        f"them: {', '.join(NAMES)} (docs/protocol-lab.md)",
     )
     common.add_argument(
         "-v", "--verbose", action="store_true",
@@ -129,6 +142,7 @@ def _options(args) -> ClientOptions:
         timeout=args.timeout,
         long_timeout=args.long_timeout,
         max_transmissions=args.retries,
+        variants=args.variant,
     )
 
 
@@ -152,7 +166,11 @@ async def _send(args) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if not args.variant.plain and args.protocol != "ultimaker":
+        parser.error(f"--variant {args.variant}: the variants are Ultimaker's; give "
+                     "--protocol ultimaker")
     try:
         return trio.run(_print if args.command == "print" else _send, args)
     except BaseException as raised:  # noqa: BLE001 - sorted below, the rest re-raised

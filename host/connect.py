@@ -10,10 +10,11 @@ from fake_marlin.host.clients.g2core import G2coreClient
 from fake_marlin.host.clients.marlin import MarlinClient
 from fake_marlin.host.clients.repetier import RepetierClient
 from fake_marlin.host.clients.ultimaker import UltimakerClient
-from fake_marlin.host.errors import CommandError
+from fake_marlin.host.errors import CommandError, UsageError
 from fake_marlin.host.gcode_file import JobCommand, checked_job
 from fake_marlin.host.shell import ByteStream, Client, ClientOptions, LineCallback, sole_exception
 from fake_marlin.host.url_port import open_port
+from fake_marlin.wire.ultimaker_variants import VariantError, variants_of
 
 DEFAULT_BAUDRATE = 250000
 _CLIENTS: dict[str, type[Client]] = {
@@ -23,9 +24,15 @@ _CLIENTS: dict[str, type[Client]] = {
 PROTOCOLS = tuple(_CLIENTS)
 
 
-def _client_class(protocol: str) -> type[Client]:
+def _client_class(protocol: str, options: ClientOptions = ClientOptions()) -> type[Client]:
     if protocol not in _CLIENTS:
         raise CommandError(f"unknown protocol {protocol!r}; choose from {', '.join(PROTOCOLS)}")
+    try:
+        variants = variants_of(options.variants)
+    except VariantError as error:
+        raise UsageError(str(error)) from None
+    if not variants.plain and protocol != "ultimaker":
+        raise UsageError(f"protocol variants ({variants}) are Ultimaker's; {protocol} has none")
     return _CLIENTS[protocol]
 
 
@@ -42,7 +49,7 @@ async def connect(
     on_line: LineCallback | None = None,
 ) -> AsyncIterator[Client]:
     """A client speaking `protocol` over an open byte stream."""
-    client = _client_class(protocol)(stream, options, on_line)
+    client = _client_class(protocol, options)(stream, options, on_line)
     try:
         async with trio.open_nursery() as nursery:
             nursery.start_soon(client.run, nursery.cancel_scope)
@@ -67,8 +74,8 @@ async def open_printer(
 ) -> AsyncIterator[Client]:
     """Open a serial port (the emulator's pty or a real printer), or a network port by URL
     (socket://HOST:PORT, rfc2217://HOST:PORT), and talk to the printer on it."""
-    _client_class(protocol)
-    serial_port = await open_port(port, baudrate)
+    _client_class(protocol, options)
+    serial_port = await open_port(port, baudrate, variants_of(options.variants).data_bits)
     try:
         async with connect(serial_port, protocol, options, on_line) as client:
             yield client

@@ -29,6 +29,11 @@ class PrinterHalted(RemoteError):
     """The firmware stopped itself (kill(): M112, thermal runaway, ...) until it is reset."""
 
 
+class VariantMismatch(RemoteError):
+    """The printer speaks other protocol variants (the lab's, Ultimaker's) than this host:
+    neither side could understand the other, so the session stops before anything is sent."""
+
+
 class PrinterLocked(RemoteError):
     """The printer refuses every command until it is unlocked (M511 P<password>)."""
 

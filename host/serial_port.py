@@ -17,9 +17,9 @@ class SerialPort:
         os.set_blocking(self._fd, False)
 
     @classmethod
-    def open(cls, path: str, baudrate: int) -> "SerialPort":
+    def open(cls, path: str, baudrate: int, bytesize: int = 8) -> "SerialPort":
         try:
-            device = serial.Serial(path, baudrate, timeout=0, exclusive=True)
+            device = serial.Serial(path, baudrate, bytesize=bytesize, timeout=0, exclusive=True)
         except serial.SerialException as error:
             if error.errno:
                 reason = os.strerror(error.errno)

@@ -19,6 +19,7 @@ import trio
 from fake_marlin.host.cores.base import HostCore, PrinterLine, Stats, StreamingCore
 from fake_marlin.host.cores.queue import Ticket
 from fake_marlin.host.errors import HostError
+from fake_marlin.wire.ultimaker_variants import Variants
 from fake_marlin.host.gcode_file import checked_job
 
 LineCallback = Callable[[PrinterLine], None]
@@ -55,6 +56,8 @@ class ClientOptions:
     received_timeout: float = 10.0
     max_transmissions: int = 8
     settle: float = 0.5  # how long to wait for the printer's boot message before sending
+    # The protocol lab's variants (Ultimaker only): "ack,crc8", names, or a Variants.
+    variants: "str | tuple[str, ...] | Variants" = ()
 
 
 _COUNTED = ("packets_sent", "resends", "timeouts", "rejects", "unconfirmed")  # summed per job

@@ -28,10 +28,12 @@ def is_url(port: str) -> bool:
     return "://" in port
 
 
-async def open_port(port: str, baudrate: int) -> "SerialPort | TcpPort | Rfc2217Port":
-    """The port, opened: a URL (socket://, rfc2217://) or a serial device's path."""
+async def open_port(port: str, baudrate: int,
+                    bytesize: int = 8) -> "SerialPort | TcpPort | Rfc2217Port":
+    """The port, opened: a URL (socket://, rfc2217://) or a serial device's path (with
+    `bytesize` data bits: 7 for the 7bit variant's line)."""
     if not is_url(port):
-        return SerialPort.open(port, baudrate)
+        return SerialPort.open(port, baudrate, bytesize)
     scheme = port.partition("://")[0].lower()
     if scheme == "socket":
         return await TcpPort.open(port)

@@ -3,6 +3,7 @@
 
 from fake_marlin.host.codecs.ultimaker import check_command
 from fake_marlin.host.cores.ultimaker import UltimakerCore
+from fake_marlin.wire.ultimaker_variants import variants_of
 from fake_marlin.host.shell import ClientOptions, StreamingClient
 
 
@@ -17,4 +18,5 @@ class UltimakerClient(StreamingClient):
             long_timeout=options.long_timeout,
             received_timeout=options.received_timeout,
             max_transmissions=options.max_transmissions,
+            variants=variants_of(options.variants),
         )

@@ -20,6 +20,13 @@ make a command run twice; these rules only decide how fast a loss is repaired:
 - A packet known to have arrived whose `o` never comes (lost on the way back) counts as done
   after `received_timeout` of silence.
 
+With the ack variant (the protocol lab's, docs/protocols.md section 1.1) an `a` NN says packet
+NN is in the printer's queue: it and those before it are RECEIVED at once, and a packet sent
+gets only a round trip's time (measured, as TCP measures it) to draw its `a` or an `r`,
+however busy the printer is: a lost packet is sent again after milliseconds, not seconds.
+The other variants change only the bytes (host.codecs.ultimaker). The printer names its
+variants at boot; a host that speaks others stops at once (VariantMismatch).
+
 The core reads the printer's frames and lines itself (host.codecs.ultimaker): an `o`'s response
 is the data lines before it; `q` and `LOG:` lines are the printer's greeting; an `Error:` that
 says the firmware halted ends the session once the line has been shown.
@@ -36,15 +43,22 @@ from fake_marlin.host.codecs.ultimaker import (
     FrameParser,
     Line,
     LineKind,
+    Received,
     Reject,
     RoomInfo,
     encode_command,
 )
 from fake_marlin.host.cores.queue import CommandQueue, Ticket, is_long_command
-from fake_marlin.host.errors import PrinterHalted, PrinterNotResponding, PrinterReset
-from fake_marlin.wire.ultimaker import next_seq, seq_distance
+from fake_marlin.host.errors import (
+    PrinterHalted, PrinterNotResponding, PrinterReset, VariantMismatch,
+)
+from fake_marlin.wire.ultimaker_variants import PLAIN, Variants, announced
 
 PROBE_MOVES = 3  # a full planner is probed after this many moves' time (or received_timeouts)
+BOOT_LINE = "Marlin started"  # the printer's first LOG line; its variants (if any) follow
+# The ack variant's resend timer (RFC 6298's estimator): never below this, however fast the line.
+ACK_TIMEOUT_MIN = 0.01
+ACKLESS_ACKS = 3  # `o` frames with never an `a` before an ack host says the printer has none
 
 
 class PacketState(Enum):
@@ -86,12 +100,14 @@ class UltimakerCore(CommandQueue):
     received_timeout: float = 10.0
     max_transmissions: int = 8
     first_seq: int = 0
+    variants: Variants = PLAIN
     stats: UltimakerStats = field(default_factory=UltimakerStats)
 
     def __post_init__(self) -> None:
         if not 1 <= self.window <= 32:
             raise ValueError("window must be 1 to 32 packets")
         self._open_queue()
+        self._packet_format = self.variants.packet
         self._in_flight: list[_Packet] = []
         self._next_seq = self.first_seq
         self._echo_seq: int | None = None  # the `r` NN whose echoes we expect
@@ -104,8 +120,14 @@ class UltimakerCore(CommandQueue):
         self._printer_room: int | None = None
         self._last_ack_at: float | None = None
         self._ack_interval = 0.0  # between the last two `o` frames: how long a move takes
+        # The ack variant's round-trip estimate: smoothed, and its variation (None: no sample).
+        self._round_trip: float | None = None
+        self._round_trip_variation = 0.0
+        self._received_frames = 0  # `a` frames heard
+        self._acks_without_received = 0
         # Reading the printer (receive_data, next_event).
-        self._parser = FrameParser()
+        self._parser = FrameParser(self.variants)
+        self._boot_heard = False  # its boot line, and not yet its variants or its `q`
         self._received_at = -math.inf
         self._response: list[str] = []  # data lines since the last `o`
         self._halted: str | None = None  # why the session ends, once the line is shown
@@ -138,6 +160,10 @@ class UltimakerCore(CommandQueue):
         return bool(self._in_flight) and is_long_command(self._in_flight[0].ticket.text)
 
     def _due(self, packet: "_Packet") -> float:
+        if self.variants.ack and packet.state is PacketState.SENT:
+            # Its `a` (or an `r`) comes a round trip after it was sent, whatever the printer
+            # is doing: silence past that means it was lost.
+            return packet.since + self._ack_timeout()
         if self._long_running():
             patience = self.long_timeout
         elif self._printer_room == 0:
@@ -152,9 +178,30 @@ class UltimakerCore(CommandQueue):
             patience = max(patience, self.received_timeout)
         return max(packet.since, self._last_heard) + patience
 
+    def _ack_timeout(self) -> float:
+        if self._round_trip is None:
+            return self.timeout
+        # RFC 6298's SRTT + 4 RTTVAR, and a round trip more: on a steady line the variation
+        # falls to nothing, and a packet sent behind others, or an `a` behind an `o`'s
+        # response, would time out only for being a little later than the rest.
+        estimate = 2 * self._round_trip + 4 * self._round_trip_variation
+        return min(self.timeout, max(ACK_TIMEOUT_MIN, estimate))
+
+    def _sample_round_trip(self, sample: float) -> None:
+        """RFC 6298 section 2, from packets sent once only (Karn)."""
+        if self._round_trip is None:
+            self._round_trip, self._round_trip_variation = sample, sample / 2
+            return
+        self._round_trip_variation += (abs(self._round_trip - sample)
+                                       - self._round_trip_variation) / 4
+        self._round_trip += (sample - self._round_trip) / 8
+
     def _may_give_up(self, now: float) -> bool:
         """A printer with a full planner may be silent for a slow move's length: give up on
         it only after `long_timeout` of silence, however many probes went unanswered."""
+        if self.variants.ack:
+            # Its receiver answers at once, however busy: silence is silence.
+            return now - self._last_heard >= self.timeout * self.max_transmissions
         if self._printer_room == 0 and not self._long_running():
             return now - self._last_heard >= self.long_timeout
         return True
@@ -168,7 +215,7 @@ class UltimakerCore(CommandQueue):
     # -- time and transmission -----------------------------------------------------------
     def poll(self, now: float) -> list[bytes]:
         """Handle expired timers, then return the packets to write now, in order."""
-        return [encode_command(t.seq, t.text) for t in self.transmits(now)]
+        return [encode_command(t.seq, t.text, self._packet_format) for t in self.transmits(now)]
 
     def transmits(self, now: float) -> list[Transmit]:
         """poll(), before the packets are encoded."""
@@ -177,7 +224,7 @@ class UltimakerCore(CommandQueue):
             return []
         while len(self._in_flight) < self.window and self._backlog:
             self._in_flight.append(_Packet(self._backlog.popleft(), self._next_seq))
-            self._next_seq = next_seq(self._next_seq)
+            self._next_seq = self._packet_format.next_seq(self._next_seq)
         transmits = []
         for packet in self._in_flight:
             if not packet.needs_transmit:
@@ -202,9 +249,11 @@ class UltimakerCore(CommandQueue):
         for index, packet in enumerate(self._in_flight):
             if packet.state is PacketState.SENT and not packet.needs_transmit and self._due(packet) <= now:
                 if packet.transmissions >= self.max_transmissions and self._may_give_up(now):
+                    speaking = "this protocol" if self.variants.plain else (
+                        f"this protocol with variants {self.variants}")
                     raise PrinterNotResponding(
                         f"no answer to {packet.ticket.text!r} after {packet.transmissions} tries; "
-                        "is a printer speaking this protocol on the port?"
+                        f"is a printer speaking {speaking} on the port?"
                     )
                 self.stats.timeouts += 1
                 self._go_back(index)
@@ -226,8 +275,19 @@ class UltimakerCore(CommandQueue):
         while (event := self._parser.next_event()) is not None:
             if isinstance(event, Ack):
                 self.room = event.room
+                if self.variants.ack and not self._received_frames:
+                    self._acks_without_received += 1
+                    if self._acks_without_received >= ACKLESS_ACKS:
+                        self._mismatch(None, "it executes packets but never says it received "
+                                       "one (no `a` frames): it lacks variant ack")
                 self._completed += self.on_ack(event.seq, event.room, tuple(self._response), now)
                 self._response.clear()
+            elif isinstance(event, Received):
+                self.room = event.room
+                if not self.variants.ack:
+                    self._mismatch(None, "it acknowledges receipt with `a` frames (variant ack)")
+                self._received_frames += 1
+                self.on_received(event.seq, event.room, now)
             elif isinstance(event, Reject):
                 self.room = event.room
                 self.on_reject(event.seq, event.room, now)
@@ -235,6 +295,10 @@ class UltimakerCore(CommandQueue):
                 self.room = event.room
                 self.heard(now, event.room)
                 self.greeted = True
+                if self._boot_heard:  # a boot that named no variants: plain v3's
+                    self._boot_heard = False
+                    if not self.variants.plain:
+                        self._mismatch(PLAIN)
             elif isinstance(event, CorruptFrame):
                 self.corrupt_frames += 1
             else:
@@ -244,10 +308,42 @@ class UltimakerCore(CommandQueue):
                     continue
                 if event.kind is LineKind.LOG:
                     self.greeted = True
+                    self._read_greeting(event.text)
                 elif event.kind is LineKind.ERROR and marlin.is_halt_message(event.text):
                     self._halted = f"the printer halted: Error:{event.text}"
                 return event
         return None
+
+    def _read_greeting(self, text: str) -> None:
+        if text == BOOT_LINE:
+            self._boot_heard = True
+        elif (variants := announced(text)) is not None:
+            self._boot_heard = False
+            if variants != self.variants:
+                self._mismatch(variants)
+
+    def _mismatch(self, printer: Variants | None, how: str = "") -> None:
+        theirs = how or ("it speaks plain v3" if printer is None or printer.plain
+                         else f"it speaks variants {printer}")
+        ours = "plain v3" if self.variants.plain else f"variants {self.variants}"
+        raise VariantMismatch(
+            f"the printer does not speak this host's protocol ({ours}): {theirs}; give both "
+            "sides the same --variant")
+
+    def on_received(self, seq: int, room: int, now: float) -> None:
+        """An `a` frame (the ack variant): the packet `seq` and those before it are queued."""
+        self.heard(now, room)
+        position = self._position(seq)
+        if position is None or position >= len(self._in_flight):
+            return  # an echo of something already settled
+        self._synchronised = True
+        for packet in self._in_flight[:position + 1]:
+            if packet.state is PacketState.SENT:
+                if packet.transmissions == 1 and not packet.needs_transmit:
+                    self._sample_round_trip(now - packet.since)
+                packet.state = PacketState.RECEIVED
+                packet.needs_transmit = False
+                packet.since = now
 
     def on_ack(self, seq: int, room: int, response: tuple[str, ...], now: float) -> list[Ticket]:
         """An `o` frame; returns the tickets it completes, oldest first."""
@@ -277,7 +373,7 @@ class UltimakerCore(CommandQueue):
             return
         position = self._position(seq)
         if position is None:
-            if 0 < seq_distance(seq, self._base()) <= 2 * self.window:
+            if 0 < self._packet_format.seq_distance(seq, self._base()) <= 2 * self.window:
                 return  # about packets already settled
             if self._synchronised:
                 raise PrinterReset(
@@ -313,12 +409,12 @@ class UltimakerCore(CommandQueue):
             packet.seq = self._next_seq
             packet.state = PacketState.SENT
             packet.needs_transmit = True
-            self._next_seq = next_seq(self._next_seq)
+            self._next_seq = self._packet_format.next_seq(self._next_seq)
         self._echo_seq, self._echoes_left = None, 0
 
     def _position(self, seq: int) -> int | None:
         """Where `seq` stands in the window: 0..in_flight (in_flight = the next one to send)."""
-        distance = seq_distance(self._base(), seq)
+        distance = self._packet_format.seq_distance(self._base(), seq)
         return distance if distance <= len(self._in_flight) else None
 
     def _base(self) -> int:
