@@ -43,6 +43,7 @@ from fake_marlin.emulator.server.clock import ScaledClock
 from fake_marlin.emulator.server.flash_file import FlashFile, FlashFileError
 from fake_marlin.emulator.trace.writer import Trace, TraceError
 from fake_marlin.emulator.server.lifecycle import PROTOCOLS, PrinterServer
+from fake_marlin.wire.ultimaker_variants import NAMES, PLAIN, VariantError, Variants, parse_variants
 
 
 def _positive_float(text: str) -> float:
@@ -70,6 +71,13 @@ def _capability(text: str) -> tuple[str, bool]:
     if not name or not name.replace("_", "").isalnum() or value not in ("0", "1"):
         raise argparse.ArgumentTypeError(f"expected NAME=0 or NAME=1, got {text!r}")
     return name.upper(), value == "1"
+
+
+def _variants(text: str) -> Variants:
+    try:
+        return parse_variants(text)
+    except VariantError as error:
+        raise argparse.ArgumentTypeError(str(error)) from None
 
 
 def _baud(text: str) -> int | str:
@@ -134,6 +142,12 @@ def add_arguments(parser: argparse._ActionsContainer) -> None:
         "--protocol", choices=PROTOCOLS, default="auto",
         help="wire protocol; auto (default) decides from each connection's first bytes, among "
         "those the firmware speaks",
+    )
+    parser.add_argument(
+        "--variant", type=_variants, default=PLAIN, metavar="NAME[,NAME]",
+        help="with --protocol ultimaker: the protocol lab's variants of it, "
+        f"{', '.join(NAMES)} (comma-separated; the host must be given the same; see "
+        "docs/protocol-lab.md)",
     )
     parser.add_argument("--link", metavar="PATH", help="also make PATH a symlink to the pty "
                         "(with --printers, a pattern with {n}: /tmp/printer-{n})")
@@ -273,6 +287,7 @@ def _plans(parser: argparse.ArgumentParser, args: argparse.Namespace) -> list[Pr
             ("--eeprom-file", args.eeprom_file),
             ("--fault-table", args.fault_table),
             ("--firmware", args.firmware != "marlin"), ("--quirk", args.quirk),
+            ("--variant", not args.variant.plain),
         ) if value]
         if given:
             parser.error(f"argument --farm: {given[0]} goes in the farm file's [[printer]] tables")
@@ -291,11 +306,14 @@ def _plans(parser: argparse.ArgumentParser, args: argparse.Namespace) -> list[Pr
     if args.protocol != "auto" and args.protocol not in profile.protocols:
         parser.error(f"argument --protocol: firmware {profile.name} speaks "
                      f"{', '.join(profile.protocols)}, not {args.protocol}")
+    if not args.variant.plain and args.protocol != "ultimaker":
+        parser.error(f"argument --variant: the variants ({args.variant}) are Ultimaker's protocol's: "
+                     "give --protocol ultimaker (auto never guesses a variant)")
     setup = PrinterSetup(
         protocol=args.protocol, extruders=args.extruders, boot_delay=args.boot_delay,
         advanced_ok=args.advanced_ok, latency=args.latency_ms / 1000, jitter=args.jitter_ms / 1000,
         baud=args.baud if isinstance(args.baud, int) else None, baud_from_host=args.baud == "host",
-        firmware=args.firmware, quirks=quirks,
+        firmware=args.firmware, quirks=quirks, variants=args.variant,
     )
     faults = FaultConfig(seed=args.seed)
     if args.scenario:

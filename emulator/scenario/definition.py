@@ -16,6 +16,7 @@ from fake_marlin.emulator.firmware.quirks import read_quirks
 from fake_marlin.emulator.link.conditions import LinkConditions
 from fake_marlin.emulator.server.lifecycle import ServerConfig
 from fake_marlin.emulator import tables
+from fake_marlin.wire.ultimaker_variants import PLAIN, VariantError, Variants, variants_of
 
 DIRECTIONS = ("to-printer", "to-host")
 PROTOCOLS = ("auto", "marlin", "ultimaker", "repetier", "commstack", "g2core")
@@ -49,6 +50,7 @@ class PrinterSetup:
     advanced_ok: bool = False
     firmware: str = "marlin"  # a shipped profile's name, or a profile file's path
     quirks: Quirks | None = None  # None: the profile's own
+    variants: Variants = PLAIN  # the protocol lab's (protocol ultimaker only)
 
     @property
     def conditions(self) -> LinkConditions:
@@ -67,6 +69,7 @@ class PrinterSetup:
         return ServerConfig(
             protocol=self.protocol, boot_delay=self.boot_delay, advanced_ok=self.advanced_ok,
             faults=faults, conditions=self.conditions, baud_from_host=self.baud_from_host,
+            variants=self.variants,
         )
 
 
@@ -78,6 +81,7 @@ class HostSetup:
     retries: int = 8
     disconnect_after: int | None = None  # drop the port after this many commands, then reopen
     reconnect_after: float | None = None  # when the line hangs up: reopen after this long
+    variants: Variants | None = None  # default: the printer's
 
 
 @dataclass(frozen=True)
@@ -111,6 +115,10 @@ class Scenario:
     @property
     def host_protocol(self) -> str:
         return self.host.protocol or self.printer.protocol
+
+    @property
+    def host_variants(self) -> Variants:
+        return self.printer.variants if self.host.variants is None else self.host.variants
 
 
 def load(path: str | os.PathLike[str]) -> Scenario:
@@ -167,9 +175,26 @@ def _printer(table: _Reader) -> PrinterSetup:
         advanced_ok=table.get("advanced_ok", bool, False),
         firmware=firmware,
         quirks=quirks,
+        variants=_variants(table, "variants"),
     )
+    if not setup.variants.plain and protocol != "ultimaker":
+        table.fail("variants", f"are Ultimaker's: give protocol = \"ultimaker\" (auto never "
+                               "guesses a variant)")
     table.finish()
     return setup
+
+
+def _variants(table: _Reader, key: str, default: Variants | None = PLAIN) -> Variants | None:
+    """`variants = ["ack", "crc8"]` or `"ack,crc8"`."""
+    value = table.get(key, (str, list), None)
+    if value is None:
+        return default
+    if isinstance(value, list) and not all(isinstance(name, str) for name in value):
+        table.fail(key, "must be a list of variant names, or one string of them")
+    try:
+        return variants_of(value)
+    except VariantError as error:
+        table.fail(key, str(error))
 
 
 def _faults(path: Path, entries: list, seed: int) -> FaultConfig:
@@ -275,7 +300,11 @@ def _host(table: _Reader, printer: PrinterSetup) -> HostSetup:
         retries=table.get("retries", int, 8, minimum=1),
         disconnect_after=table.get("disconnect_after", int, None, minimum=1),
         reconnect_after=table.get("reconnect_after", (int, float), None, minimum=0),
+        variants=_variants(table, "variants", None),
     )
+    if host.variants is not None and not host.variants.plain and (
+            host.protocol or printer.protocol) != "ultimaker":
+        table.fail("variants", "are Ultimaker's: the host must speak ultimaker")
     if host.protocol is None and printer.protocol == "auto":
         table.fail("protocol", "is needed when the printer detects its protocol (printer.protocol = auto)")
     if host.disconnect_after is not None and (host.protocol or printer.protocol) == "commstack":

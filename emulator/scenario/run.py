@@ -142,7 +142,7 @@ async def _run(scenario: Scenario, sd_dir: Path, trace: Trace | None = None) -> 
                            trace=trace, firmware=firmware)
     options = ClientOptions(
         window=scenario.host.window, timeout=scenario.host.timeout,
-        max_transmissions=scenario.host.retries,
+        max_transmissions=scenario.host.retries, variants=scenario.host_variants,
     )
     start = trio.current_time()
     async with trio.open_nursery() as nursery:
