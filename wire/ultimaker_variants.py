@@ -28,7 +28,9 @@ CHAR_MIN, CHAR_MAX = 0x20, 0x7F  # what every byte of a sync-byte packet but its
 ARMORED_SEQUENCE_MODULUS = 96  # 0x20 + seq stays a character: 0..95
 CHECK_DIGIT_BASE = 0x40  # a check is sent 6 bits per character, 0x40 + bits: 0x40..0x7F
 CHECK_DIGIT_BITS = 6
-ANNOUNCEMENT = "protocol variants: "  # after the boot line, in the printer's out-of-band form
+BOOT_LINE = "Marlin started"  # the printer's first LOG line (UltimakerMarlin's)
+# A printer with variants names them in that line: "Marlin started; protocol variants: ack".
+ANNOUNCEMENT = BOOT_LINE + "; protocol variants: "
 
 
 class VariantError(ValueError):
@@ -198,13 +200,16 @@ class PacketFormat:
 V3_PACKET = PacketFormat(start=v3.HEADER_BYTE, starts=2, armored=False, check_bits=16)
 
 
-def announcement(variants: Variants) -> str:
-    """The text of the printer's boot line naming its variants (none for plain v3)."""
-    return ANNOUNCEMENT + ",".join(variants.names)
+def boot_line(variants: Variants) -> str:
+    """The text of the printer's boot line: plain v3's, or naming its variants."""
+    return BOOT_LINE if variants.plain else ANNOUNCEMENT + ",".join(variants.names)
 
 
 def announced(text: str) -> Variants | None:
-    """The variants an out-of-band line's text (without its prefix) announces, if it does."""
+    """The variants a boot line's text (without its prefix) names; None if it is no boot line
+    (one damaged on the way, say)."""
+    if text == BOOT_LINE:
+        return PLAIN
     if not text.startswith(ANNOUNCEMENT):
         return None
     try:

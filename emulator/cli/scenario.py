@@ -7,6 +7,7 @@ import sys
 from pathlib import Path
 
 from fake_marlin.emulator.cli.parsing import Commands
+from fake_marlin.wire.ultimaker_variants import NAMES, PLAIN, VariantError, Variants, parse_variants
 
 # scenario.fuzz.PROTOCOLS (tests/test_cli.py checks): written out here, as the imports of the
 # scenarios and their runner are kept inside the functions that run them, so that building the
@@ -154,6 +155,10 @@ def _add_fuzz_parser(commands: Commands) -> argparse.ArgumentParser:
     fuzz.add_argument("--firmware", default="marlin", metavar="NAME",
                       help="with --protocol marlin: the printer's firmware (default marlin); the "
                       "same faults for every firmware of one seed")
+    fuzz.add_argument("--variant", action="append", default=[], metavar="NAME[,NAME]|each",
+                      help="with --protocol ultimaker: run the cases with these protocol lab "
+                      "variants (repeatable: one campaign each; `each`: every variant alone, "
+                      "then all together; `v3`: plain); the same faults for every variant")
     fuzz.add_argument("--runs", type=int, required=True, help="cases per protocol")
     fuzz.add_argument("--seed", type=int, required=True, help="the campaign's seed (0 or more)")
     fuzz.add_argument("--out", required=True, metavar="DIR", help="where failing cases are written")
@@ -193,11 +198,16 @@ def fuzz_main(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
         if args.protocol != "marlin" or "marlin" not in profile.protocols:
             parser.error("--firmware: a firmware other than marlin is fuzzed with --protocol "
                          "marlin, and must speak it")
+    variant_sets = _variant_sets(args.variant, parser)
+    if args.variant and args.protocol != "ultimaker":
+        parser.error("--variant: the protocol lab's variants are Ultimaker's; give --protocol "
+                     "ultimaker")
     progress = _Progress() if sys.stderr.isatty() else None
     try:
         summaries = run_campaign(
             protocols, args.seed, args.runs, out, jobs=args.jobs or default_jobs(),
             moves=args.moves, keep_all=args.keep_all, progress=progress, firmware=args.firmware,
+            variants=variant_sets,
         )
     except KeyboardInterrupt:
         print("\nfake-marlin scenario fuzz: interrupted", file=sys.stderr)
@@ -218,6 +228,23 @@ def fuzz_main(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
         runs = sum(summary.runs for summary in summaries)
         print(f"fuzz: {runs} runs, {runs - failed} passed, {failed} failed")
     return 1 if failed else 0
+
+
+def _variant_sets(given: list[str], parser: argparse.ArgumentParser) -> tuple[Variants, ...]:
+    """Each --variant's set, in order, once each; `each`: every variant alone, then all."""
+    if not given:
+        return (PLAIN,)
+    sets: list[Variants] = []
+    for text in given:
+        if text.strip() == "each":
+            found = [*(parse_variants(name) for name in NAMES), parse_variants(",".join(NAMES))]
+        else:
+            try:
+                found = [parse_variants(text)]
+            except VariantError as error:
+                parser.error(f"--variant: {error}")
+        sets += [variants for variants in found if variants not in sets]
+    return tuple(sets)
 
 
 class _Progress:

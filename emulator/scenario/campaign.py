@@ -21,6 +21,7 @@ from fake_marlin.emulator.journal.verify import Kind, verify
 from fake_marlin.emulator.scenario import fuzz
 from fake_marlin.emulator.scenario.definition import ScenarioError, load
 from fake_marlin.emulator.scenario.run import ScenarioResult, run_scenario
+from fake_marlin.wire.ultimaker_variants import PLAIN, Variants
 
 
 @dataclass(frozen=True)
@@ -85,8 +86,9 @@ class Summary:
 
 
 def cases(protocol: str, seed: int, runs: int, moves: int | None = None,
-          firmware: str = "marlin") -> list[Case]:
-    return [Case(protocol, seed, number, fuzz.generate(protocol, seed, number, moves, firmware))
+          firmware: str = "marlin", variants: Variants = PLAIN) -> list[Case]:
+    return [Case(protocol, seed, number,
+                 fuzz.generate(protocol, seed, number, moves, firmware, variants))
             for number in range(1, runs + 1)]
 
 
@@ -136,10 +138,11 @@ Progress = Callable[[str, int, int, int], None]  # protocol, done, total, failed
 def run_campaign(
     protocols: Iterable[str], seed: int, runs: int, out: Path, jobs: int = 1,
     moves: int | None = None, keep_all: bool = False, progress: Progress | None = None,
-    firmware: str = "marlin",
+    firmware: str = "marlin", variants: Iterable[Variants] = (PLAIN,),
 ) -> list[Summary]:
-    """Run `runs` cases per protocol, one protocol after another, in `jobs` worker processes;
-    write each failing case (each case, with `keep_all`) to `out`."""
+    """Run `runs` cases per protocol (and per variant set, for Ultimaker), one after another,
+    in `jobs` worker processes; write each failing case (each case, with `keep_all`) to
+    `out`."""
     executor = None
     if jobs > 1:
         # Fresh interpreters (spawn), not forks of this one: a worker holds nothing but what
@@ -149,8 +152,10 @@ def run_campaign(
     summaries = []
     try:
         for protocol in protocols:
-            summaries.append(_run_protocol(
-                protocol, seed, runs, out, executor, moves, keep_all, progress, firmware))
+            for variant_set in variants if protocol == "ultimaker" else (PLAIN,):
+                summaries.append(_run_protocol(
+                    protocol, seed, runs, out, executor, moves, keep_all, progress, firmware,
+                    variant_set))
     finally:
         if executor is not None:
             executor.shutdown(wait=True, cancel_futures=True)
@@ -158,9 +163,12 @@ def run_campaign(
 
 
 def _run_protocol(protocol, seed, runs, out, executor, moves, keep_all, progress,
-                  firmware="marlin") -> Summary:
+                  firmware="marlin", variants: Variants = PLAIN) -> Summary:
     started = time.perf_counter()
-    todo = cases(protocol, seed, runs, moves, firmware)
+    todo = cases(protocol, seed, runs, moves, firmware, variants)
+    name = protocol if firmware == "marlin" else f"{protocol} ({firmware})"
+    if not variants.plain:
+        name = f"{protocol} ({variants})"
     results: dict[int, CaseResult] = {}
     failed = 0
 
@@ -169,7 +177,7 @@ def _run_protocol(protocol, seed, runs, out, executor, moves, keep_all, progress
         results[index] = result
         failed += not result.passed
         if progress is not None:
-            progress(protocol, len(results), len(todo), failed)
+            progress(name, len(results), len(todo), failed)
 
     if executor is None:
         for index, case in enumerate(todo):
@@ -179,7 +187,7 @@ def _run_protocol(protocol, seed, runs, out, executor, moves, keep_all, progress
                    for index, case in enumerate(todo)}
         for future in concurrent.futures.as_completed(futures):
             done(futures[future], future.result())
-    summary = Summary(protocol if firmware == "marlin" else f"{protocol} ({firmware})", seed)
+    summary = Summary(name, seed)
     for index, case in enumerate(todo):
         result = results[index]
         summary.runs += 1

@@ -175,7 +175,7 @@ def _printer(table: _Reader) -> PrinterSetup:
         advanced_ok=table.get("advanced_ok", bool, False),
         firmware=firmware,
         quirks=quirks,
-        variants=_variants(table, "variants"),
+        variants=_variants(table, "variants") or PLAIN,
     )
     if not setup.variants.plain and protocol != "ultimaker":
         table.fail("variants", f"are Ultimaker's: give protocol = \"ultimaker\" (auto never "
@@ -184,17 +184,17 @@ def _printer(table: _Reader) -> PrinterSetup:
     return setup
 
 
-def _variants(table: _Reader, key: str, default: Variants | None = PLAIN) -> Variants | None:
-    """`variants = ["ack", "crc8"]` or `"ack,crc8"`."""
+def _variants(table: _Reader, key: str) -> Variants | None:
+    """`variants = ["ack", "crc8"]` or `"ack,crc8"`; None if not given."""
     value = table.get(key, (str, list), None)
     if value is None:
-        return default
+        return None
     if isinstance(value, list) and not all(isinstance(name, str) for name in value):
         table.fail(key, "must be a list of variant names, or one string of them")
     try:
         return variants_of(value)
     except VariantError as error:
-        table.fail(key, str(error))
+        raise ScenarioError(f"{table.path}: {table.where}{key}: {error}") from None
 
 
 def _faults(path: Path, entries: list, seed: int) -> FaultConfig:
@@ -300,7 +300,7 @@ def _host(table: _Reader, printer: PrinterSetup) -> HostSetup:
         retries=table.get("retries", int, 8, minimum=1),
         disconnect_after=table.get("disconnect_after", int, None, minimum=1),
         reconnect_after=table.get("reconnect_after", (int, float), None, minimum=0),
-        variants=_variants(table, "variants", None),
+        variants=_variants(table, "variants"),
     )
     if host.variants is not None and not host.variants.plain and (
             host.protocol or printer.protocol) != "ultimaker":

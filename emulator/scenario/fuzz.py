@@ -57,6 +57,10 @@ Three kinds of case, each with the expectation that is true of a correct host:
   banner may be lost or late; its host also knows the reset by the board's JSON verbosity gone
   back to the default.)
 
+With `variants` (the protocol lab's, Ultimaker only) the printer and the host speak them, and
+the faults are those of the plain case of the same seed and number: each variant meets the
+same line. Its files are named `ultimaker-<variants, + between>-<seed>-<n>.toml`.
+
 Every case is a valid scenario file: the loader's rules (no `at` for drop, duplicate and
 truncate; no `disconnect_after` for CommStack) are kept here, and the tests load hundreds.
 The mapping from seed to cases is stable for one version of this module, not across changes
@@ -70,6 +74,7 @@ from typing import Any
 import tomli_w
 
 from fake_marlin.emulator.scenario.definition import DIRECTIONS, generated_job
+from fake_marlin.wire.ultimaker_variants import PLAIN, Variants
 
 PROTOCOLS = ("ultimaker", "marlin", "repetier", "commstack", "g2core")
 STREAMING = ("ultimaker", "marlin", "repetier", "g2core")
@@ -113,8 +118,11 @@ SECONDS_PER_MOVE = 0.4  # about what a generated job takes (simulated); `at` tri
 Table = dict[str, Any]
 
 
-def case_name(protocol: str, seed: int, number: int, firmware: str = "marlin") -> str:
-    """The case's name, and its file's stem: `marlin-1-7`."""
+def case_name(protocol: str, seed: int, number: int, firmware: str = "marlin",
+              variants: Variants = PLAIN) -> str:
+    """The case's name, and its file's stem: `marlin-1-7`, `ultimaker-ack+crc8-1-7`."""
+    if not variants.plain:
+        return f"{protocol}-{'+'.join(variants.names)}-{seed}-{number}"
     if firmware not in ("marlin", FIRMWARES.get(protocol, "marlin")):
         return f"{protocol}-{firmware}-{seed}-{number}"
     return f"{protocol}-{seed}-{number}"
@@ -126,12 +134,14 @@ def case_random(protocol: str, seed: int, number: int) -> random.Random:
 
 
 def generate(protocol: str, seed: int, number: int, moves: int | None = None,
-             firmware: str = "marlin") -> Table:
+             firmware: str = "marlin", variants: Variants = PLAIN) -> Table:
     """Case `number` of the campaign `seed` for `protocol`: a scenario, as its TOML tables.
     `firmware`: the printer's (the same faults for every firmware of one seed and number);
     marlin means the protocol's own where only one firmware speaks it (FIRMWARES)."""
     if protocol not in PROTOCOLS:
         raise ValueError(f"protocol must be one of {', '.join(PROTOCOLS)}, not {protocol!r}")
+    if not variants.plain and protocol != "ultimaker":
+        raise ValueError(f"protocol variants are Ultimaker's, not {protocol}'s")
     if firmware == "marlin":
         firmware = FIRMWARES.get(protocol, firmware)
     draw = case_random(protocol, seed, number)
@@ -151,6 +161,8 @@ def generate(protocol: str, seed: int, number: int, moves: int | None = None,
     if firmware != "marlin":
         printer["firmware"] = firmware
     host: Table = {"protocol": protocol}
+    if not variants.plain:
+        printer["variants"] = list(variants.names)  # the host speaks the printer's
     for direction in DIRECTIONS:
         for kind in ("bit-errors", "drop-bytes"):
             if some():
@@ -229,10 +241,11 @@ def generate(protocol: str, seed: int, number: int, moves: int | None = None,
         kind = "exactly-once"
         expect = {"outcome": "completed", "exactly_once": True, "allow_undetectable": True}
     table: Table = {
-        "name": case_name(protocol, seed, number, firmware),
+        "name": case_name(protocol, seed, number, firmware, variants),
         "description": (f"fake-marlin scenario fuzz --protocol {protocol}"
                         + (f" --firmware {firmware}"
                            if firmware not in ("marlin", FIRMWARES.get(protocol)) else "")
+                        + (f" --variant {variants}" if not variants.plain else "")
                         + f" --seed {seed}: "
                         f"case {number}, {kind}, harshness {harshness:.2f}, {len(faults)} faults"),
         "seed": draw.randrange(2**31),

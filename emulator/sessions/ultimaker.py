@@ -18,7 +18,7 @@ from fake_marlin.emulator.protocols.ultimaker import (
     RoomChanged,
     UltimakerProtocol,
 )
-from fake_marlin.wire.ultimaker_variants import PLAIN, Variants, announcement
+from fake_marlin.wire.ultimaker_variants import PLAIN, Variants, boot_line
 from fake_marlin.emulator.sessions.driver import CommandRun, finish, hold_queue_full
 
 
@@ -46,12 +46,10 @@ class UltimakerSession:
         self._room_may_change = trio.Event()
 
     def boot(self) -> None:
-        self._send(self.protocol.send(OutOfBand(OutOfBandKind.LOG, "Marlin started")))
-        if not self.protocol.variants.plain:
-            # The lab's variants say so at once, so that a host without them knows why it
-            # cannot be understood (docs/protocols.md section 1.1).
-            self._send(self.protocol.send(
-                OutOfBand(OutOfBandKind.LOG, announcement(self.protocol.variants))))
+        # The lab's variants say so in the boot line, so that a host without them knows why
+        # it cannot be understood (docs/protocols.md section 1.1).
+        self._send(self.protocol.send(
+            OutOfBand(OutOfBandKind.LOG, boot_line(self.protocol.variants))))
         self._update_room()
 
     def feed(self, data: bytes) -> None:

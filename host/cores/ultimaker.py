@@ -52,13 +52,13 @@ from fake_marlin.host.cores.queue import CommandQueue, Ticket, is_long_command
 from fake_marlin.host.errors import (
     PrinterHalted, PrinterNotResponding, PrinterReset, VariantMismatch,
 )
-from fake_marlin.wire.ultimaker_variants import PLAIN, Variants, announced
+from fake_marlin.wire.ultimaker_variants import BOOT_LINE, PLAIN, Variants, announced
 
 PROBE_MOVES = 3  # a full planner is probed after this many moves' time (or received_timeouts)
-BOOT_LINE = "Marlin started"  # the printer's first LOG line; its variants (if any) follow
 # The ack variant's resend timer (RFC 6298's estimator): never below this, however fast the line.
 ACK_TIMEOUT_MIN = 0.01
-ACKLESS_ACKS = 3  # `o` frames with never an `a` before an ack host says the printer has none
+ACKLESS_ACKS = 10  # `o` frames with never an `a` before an ack host says the printer has none
+ACK_BACKOFF_MAX = 64  # the ack timer doubles on each expiry (RFC 6298 5.5), up to this
 
 
 class PacketState(Enum):
@@ -127,7 +127,7 @@ class UltimakerCore(CommandQueue):
         self._acks_without_received = 0
         # Reading the printer (receive_data, next_event).
         self._parser = FrameParser(self.variants)
-        self._boot_heard = False  # its boot line, and not yet its variants or its `q`
+        self._backoff = 1  # the ack timer's multiplier: doubled by each expiry
         self._received_at = -math.inf
         self._response: list[str] = []  # data lines since the last `o`
         self._halted: str | None = None  # why the session ends, once the line is shown
@@ -185,10 +185,11 @@ class UltimakerCore(CommandQueue):
         # falls to nothing, and a packet sent behind others, or an `a` behind an `o`'s
         # response, would time out only for being a little later than the rest.
         estimate = 2 * self._round_trip + 4 * self._round_trip_variation
-        return min(self.timeout, max(ACK_TIMEOUT_MIN, estimate))
+        return min(self.timeout, max(ACK_TIMEOUT_MIN, estimate) * self._backoff)
 
     def _sample_round_trip(self, sample: float) -> None:
         """RFC 6298 section 2, from packets sent once only (Karn)."""
+        self._backoff = 1
         if self._round_trip is None:
             self._round_trip, self._round_trip_variation = sample, sample / 2
             return
@@ -256,6 +257,10 @@ class UltimakerCore(CommandQueue):
                         f"is a printer speaking {speaking} on the port?"
                     )
                 self.stats.timeouts += 1
+                if self.variants.ack:
+                    # A line that stalls, or a printer gone quiet: wait longer each time, as
+                    # TCP does, rather than fill the line with copies.
+                    self._backoff = min(ACK_BACKOFF_MAX, self._backoff * 2)
                 self._go_back(index)
                 break
 
@@ -295,10 +300,6 @@ class UltimakerCore(CommandQueue):
                 self.room = event.room
                 self.heard(now, event.room)
                 self.greeted = True
-                if self._boot_heard:  # a boot that named no variants: plain v3's
-                    self._boot_heard = False
-                    if not self.variants.plain:
-                        self._mismatch(PLAIN)
             elif isinstance(event, CorruptFrame):
                 self.corrupt_frames += 1
             else:
@@ -315,12 +316,15 @@ class UltimakerCore(CommandQueue):
         return None
 
     def _read_greeting(self, text: str) -> None:
-        if text == BOOT_LINE:
-            self._boot_heard = True
-        elif (variants := announced(text)) is not None:
-            self._boot_heard = False
-            if variants != self.variants:
-                self._mismatch(variants)
+        """The boot line says what the printer speaks; one damaged on the way says nothing."""
+        variants = announced(text)
+        if variants is None and not text.startswith(BOOT_LINE):
+            return
+        if self._synchronised:  # (its list of variants may be damaged: it is a boot all the same)
+            raise PrinterReset("the printer started again (its boot line came): it was reset, "
+                               "and commands it had queued may be lost")
+        if variants is not None and variants != self.variants:
+            self._mismatch(variants)
 
     def _mismatch(self, printer: Variants | None, how: str = "") -> None:
         theirs = how or ("it speaks plain v3" if printer is None or printer.plain
@@ -383,6 +387,13 @@ class UltimakerCore(CommandQueue):
             self._renumber(seq)
             return
         self._synchronised = True
+        for packet in self._in_flight[:position]:
+            if packet.state is PacketState.SENT:
+                packet.state = PacketState.RECEIVED
+                packet.needs_transmit = False
+                packet.since = now
+        if position == len(self._in_flight):
+            return  # it expects what we have not sent yet: it has all we sent, refuses none
         if seq == self._refused_seq:
             self._refusals += 1
             if self._refusals >= self.max_transmissions * 4:
@@ -392,11 +403,6 @@ class UltimakerCore(CommandQueue):
             self._hold_until = now + min(self.timeout, 0.01 * 2 ** min(self._refusals, 16))
         else:
             self._refusals, self._refused_seq = 0, seq
-        for packet in self._in_flight[:position]:
-            if packet.state is PacketState.SENT:
-                packet.state = PacketState.RECEIVED
-                packet.needs_transmit = False
-                packet.since = now
         behind = self._in_flight[position:]
         # Each packet sent after `seq` that reaches the printer is rejected with `r` seq again.
         self._echo_seq = seq
