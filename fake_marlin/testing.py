@@ -49,6 +49,7 @@ from typing import TypedDict, Unpack
 import trio
 import trio.testing
 
+from fake_marlin.wire.ultimaker_variants import variants_of
 from fake_marlin.emulator.control.client import ControlClient
 from fake_marlin.emulator.faults.layer import FaultConfig
 from fake_marlin.emulator.journal.writer import Journal
@@ -295,6 +296,9 @@ class PrinterOptions(TypedDict, total=False):
     """A printer's settings, as `fake-marlin`'s command line takes them."""
 
     protocol: str  # auto (default), marlin, ultimaker, repetier, commstack, g2core
+    # With protocol ultimaker: the protocol lab's variants, "ack,crc8" or names (the host's
+    # ClientOptions(variants=...) must be the same; docs/protocol-lab.md)
+    variants: "str | Sequence[str]"
     firmware: str | os.PathLike[str]  # marlin (default), prusa, klipper...; or a profile file
     quirks: Mapping[str, object]  # the firmware's quirks to switch, e.g. {"ok_before_output": True}
     speed: float  # simulated time runs this many times faster than real time (default 1)
@@ -337,6 +341,8 @@ def command_line(options: PrinterOptions) -> list[str]:
         "--seed",
         str(options.get("seed", 0)),
     ]
+    if options.get("variants"):
+        args += ["--variant", str(variants_of(options["variants"]))]
     if "firmware" in options:
         args += ["--firmware", os.fspath(options["firmware"])]
     for name, value in options.get("quirks", {}).items():
@@ -463,6 +469,7 @@ async def memory_printer(**options: Unpack[PrinterOptions]) -> AsyncIterator[Mem
         boot_delay=options.get("boot_delay", 0.0),
         advanced_ok=options.get("advanced_ok", False),
         firmware=os.fspath(options.get("firmware", "marlin")),
+        variants=variants_of(options.get("variants")),
     )
     if "quirks" in options:
         profile = load_profile(setup.firmware)
