@@ -72,6 +72,7 @@ class _Packet:
     seq: int
     state: PacketState = PacketState.SENT
     since: float = 0.0  # when it was last sent, or found to have arrived
+    sent_at: float = 0.0  # when it was last sent
     transmissions: int = 0
     needs_transmit: bool = True
 
@@ -120,6 +121,10 @@ class UltimakerCore(CommandQueue):
         self._printer_room: int | None = None
         self._last_ack_at: float | None = None
         self._ack_interval = 0.0  # between the last two `o` frames: how long a move takes
+        # The quickest answer yet to a packet sent once (its `o`, or its `a`): what no answer
+        # to a copy can beat. And until when each copy still on its way may draw an `r`.
+        self._least_round_trip: float | None = None
+        self._strays: list[float] = []
         # The ack variant's round-trip estimate: smoothed, and its variation (None: no sample).
         self._round_trip: float | None = None
         self._round_trip_variation = 0.0
@@ -234,7 +239,7 @@ class UltimakerCore(CommandQueue):
             packet.needs_transmit = False
             packet.transmissions += 1
             packet.state = PacketState.SENT
-            packet.since = now
+            packet.since = packet.sent_at = now
             self.stats.packets_sent += 1
             self.stats.resends += resend
             transmits.append(Transmit(packet.seq, packet.ticket.text, resend))
@@ -364,9 +369,24 @@ class UltimakerCore(CommandQueue):
         if echo_position is not None and echo_position <= position:
             # The resent packet got through, so no echo of its rejection can follow.
             self._echo_seq, self._echoes_left = None, 0
+        self._note_strays(position + 1, now)
         done = self._complete(position, (), confirmed=True)
         done += self._complete(1, response, confirmed=True)
         return done
+
+    def _note_strays(self, count: int, now: float) -> None:
+        """The first `count` packets are done. One sent again too recently for the `o` to
+        answer the copy (an `r` that noise drew, its packet then read all the same) has its
+        copy still on the way: the printer, expecting a later packet, will answer it with an
+        `r`. Resending for that `r` would send the next packets twice, whose copies draw
+        `r`s again: a window sent twice, over and over, for as long as the job lasts."""
+        for packet in self._in_flight[:count]:
+            took = now - packet.sent_at
+            if packet.transmissions == 1:
+                least = self._least_round_trip
+                self._least_round_trip = took if least is None else min(least, took)
+            elif self._least_round_trip is not None and took < self._least_round_trip:
+                self._strays.append(packet.sent_at + 2 * self._least_round_trip)
 
     def on_reject(self, seq: int, room: int, now: float) -> None:
         """An `r` frame: the printer expects `seq` next."""
@@ -374,6 +394,12 @@ class UltimakerCore(CommandQueue):
         self.stats.rejects += 1
         if seq == self._echo_seq and self._echoes_left > 0:
             self._echoes_left -= 1
+            return
+        self._strays = [until for until in self._strays if until > now]
+        if self._strays:
+            # The answer to a stray copy (_note_strays); were it a refusal of its own, the
+            # packets behind will draw theirs.
+            del self._strays[0]
             return
         position = self._position(seq)
         if position is None:
