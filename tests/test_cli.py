@@ -163,7 +163,7 @@ def test_a_command_tells_its_own_errors_with_its_own_usage(capsys, argv, error):
 @pytest.mark.parametrize("argv, message", [
     (["--bogus"], "unrecognized arguments: --bogus"),
     (["--only", "hosts,nosuch"], "argument --only: unknown section 'nosuch'; choose from hosts, "
-     "cpu, baud, latency, simhour, farm"),
+     "cpu, baud, latency, simhour, farm, lab"),
     (["--rounds", "0"], "argument --rounds: must be a whole number from 1 to 100, got '0'"),
 ])
 def test_the_bench_errors_are_one_line(capsys, argv, message):

@@ -15,6 +15,7 @@ by both ends: seed 000's "possible improvements", each opt-in on both sides.
 Plain v3 (no variant) is byte for byte what wire/ultimaker.py says.
 """
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 from fake_marlin.wire import ultimaker as v3
@@ -87,7 +88,7 @@ def parse_variants(text: str | None) -> Variants:
     return Variants(*(name in names for name in NAMES))
 
 
-def variants_of(value: "str | Variants | tuple[str, ...] | list[str] | None") -> Variants:
+def variants_of(value: "str | Variants | Sequence[str] | None") -> Variants:
     """What a library caller may pass as `variants=`: a Variants, names, or `ack,crc8`."""
     if isinstance(value, Variants):
         return value

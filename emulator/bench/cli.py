@@ -10,6 +10,8 @@ Sections (`--only`, comma-separated; default all, in this order):
   latency  30 ms each way: Ultimaker windowed against Marlin stop-and-wait
   simhour  wall seconds one simulated hour of printing takes at --speed 1000
   farm     `--printers N`: 200 idle (CPU, memory per printer), 50 streaming at once
+  lab      the protocol lab: Ultimaker's variants against plain v3, on simulated time
+           (docs/protocol-lab.md)
 
 The JSON object: version, quick, moves, rounds, cpus, load_average (before, after), goals
 {met, missed}, and sections {name: {title, rows, notes, seconds}}; each row has figure,
@@ -38,7 +40,7 @@ from fake_marlin.emulator.cli.parsing import Commands
 PROG = "fake-marlin bench"
 # The keys of measure.SECTIONS, in their order (tests/test_cli.py checks): written out here so
 # that building the parser, which every `fake-marlin` does, imports none of the measurements.
-SECTIONS = ("hosts", "cpu", "baud", "latency", "simhour", "farm")
+SECTIONS = ("hosts", "cpu", "baud", "latency", "simhour", "farm", "lab")
 DEFAULT_MOVES, QUICK_MOVES = 2000, 300
 DEFAULT_ROUNDS, QUICK_ROUNDS = 3, 1
 

@@ -479,9 +479,16 @@ def _stream_farm(bench: Bench, count: int, name: str, host: Host, job: list[str]
     return runs, verdicts
 
 
+# -- 7. the protocol lab ----------------------------------------------------------------------
+def lab(bench: Bench) -> Section:
+    from fake_marlin.emulator.bench.lab_section import lab_section
+
+    return lab_section(bench.options.quick)
+
+
 SECTIONS: dict[str, Callable[[Bench], Section]] = {
     "hosts": hosts, "cpu": cpu, "baud": baud, "latency": latency, "simhour": simhour,
-    "farm": farm,
+    "farm": farm, "lab": lab,
 }
 
 

@@ -26,6 +26,19 @@ class Row:
 
 
 @dataclass
+class Table:
+    """A matrix of figures beside a section's rows (the protocol lab's variants by condition)."""
+
+    title: str
+    header: tuple[str, ...]
+    rows: list[tuple[str, ...]] = field(default_factory=list)
+
+    def as_dict(self) -> dict:
+        return {"title": self.title, "header": list(self.header),
+                "rows": [list(row) for row in self.rows]}
+
+
+@dataclass
 class Section:
     key: str  # the --only name
     title: str
@@ -33,10 +46,12 @@ class Section:
     rows: list[Row] = field(default_factory=list)
     notes: list[str] = field(default_factory=list)
     seconds: float = 0.0  # how long the section took, for whoever wonders where time went
+    tables: list[Table] = field(default_factory=list)
 
     def as_dict(self) -> dict:
         return {"title": self.title, "rows": [row.as_dict() for row in self.rows],
-                "notes": self.notes, "seconds": round(self.seconds, 1)}
+                "notes": self.notes, "seconds": round(self.seconds, 1),
+                **({"tables": [table.as_dict() for table in self.tables]} if self.tables else {})}
 
 
 def ratio_text(ratio: float | None) -> str:
@@ -67,6 +82,11 @@ def markdown(sections: list[Section], preamble: list[str]) -> str:
         if section.notes:
             out.append("")
             out += [f"- {note}" for note in section.notes]
+        for table in section.tables:
+            out += ["", f"#### {table.title}", ""]
+            out.append("| " + " | ".join(table.header) + " |")
+            out.append("| --- |" + " ---: |" * (len(table.header) - 1))
+            out += ["| " + " | ".join(_cell(cell) for cell in row) + " |" for row in table.rows]
     goals = [row.met for section in sections for row in section.rows if row.met is not None]
     out += ["", f"Goals: {goals.count(True)} met, {goals.count(False)} missed."]
     return "\n".join(out)
