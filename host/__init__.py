@@ -21,7 +21,9 @@ from fake_marlin.host.errors import (
     RemoteError,
     UploadFailed,
     UsageError,
+    VariantMismatch,
 )
+from fake_marlin.wire.ultimaker_variants import Variants
 from fake_marlin.host.shell import (
     ByteStream,
     Client,
@@ -57,6 +59,8 @@ __all__ = [
     "Ticket",
     "UploadFailed",
     "UsageError",
+    "VariantMismatch",
+    "Variants",
     "connect",
     "load_job",
     "open_printer",

@@ -78,6 +78,7 @@ class Condition:
     latency: float = 0.0
     bit_error_rate: float = 0.0  # toward the printer
     noise: bool = False  # open-line 0xFF bursts toward the printer
+    busy: bool = False  # the printer moves at its own pace (a full planner), not at once
 
 
 @dataclass(frozen=True)
@@ -133,7 +134,8 @@ def stream(variants_text: str, condition: Condition, moves: int, seed: int = 1) 
     async def run() -> StreamResult:
         firmware = Firmware.make(seed=seed)
         with tempfile.TemporaryDirectory(prefix="fake-marlin-lab-") as sd_dir:
-            printer = Printer(_instant(firmware.printer_config(1, Path(sd_dir))))
+            printer_config = firmware.printer_config(1, Path(sd_dir))
+            printer = Printer(printer_config if condition.busy else _instant(printer_config))
             journal = io.StringIO()
             link = MemoryLink()
             server = PrinterServer(link, printer, Journal(journal), config, firmware=firmware)

@@ -26,6 +26,10 @@ CHECKED = (PLAIN, "crc8", "sync-byte", "crc8,sync-byte", "7bit", "crc8,7bit")
 CLEAN = lab.Condition("250000 baud")
 SLOW = lab.Condition("30 ms each way", latency=lab.LATENCY)
 NOISY = lab.Condition("open-line noise", latency=lab.LATENCY, noise=True)
+# A printer whose moves take their time (0.5 mm at 25 mm/s, a full planner), clean and at 1e-3.
+BUSY = lab.Condition("busy printer", latency=lab.LATENCY, busy=True)
+BUSY_ERRORS = lab.Condition("busy printer, bit errors 0.001", latency=lab.LATENCY, busy=True,
+                            bit_error_rate=1e-3)
 
 
 def errors_condition(rate: float) -> lab.Condition:
@@ -35,7 +39,8 @@ def errors_condition(rate: float) -> lab.Condition:
 def _sizes(quick: bool) -> dict[str, int]:
     scale = 5 if quick else 1
     return {"clean": 1000 // scale, "1e-05": 6000 // scale, "0.0001": 2000 // scale,
-            "0.001": 1000 // scale, "noise": 1000 // scale, "samples": 60000 // scale}
+            "0.001": 1000 // scale, "noise": 1000 // scale, "busy": 500 // scale,
+            "samples": 60000 // scale}
 
 
 def lab_section(quick: bool, jobs: int | None = None) -> Section:
@@ -48,6 +53,9 @@ def lab_section(quick: bool, jobs: int | None = None) -> Section:
                       (variants, SLOW, sizes["clean"])))
         tasks.append((("stream", variants, NOISY.name), lab.stream,
                       (variants, NOISY, sizes["noise"])))
+        for condition in (BUSY, BUSY_ERRORS):
+            tasks.append((("stream", variants, condition.name), lab.stream,
+                          (variants, condition, sizes["busy"])))
         for rate in lab.ERROR_RATES:
             condition = errors_condition(rate)
             tasks.append((("stream", variants, condition.name), lab.stream,
@@ -121,6 +129,11 @@ def _section(results: dict[tuple[str, ...], Any], sizes: dict[str, int]) -> Sect
     v3_lost = _lost_per_error(run(PLAIN, mid), slow)
     rows.append(Row("ack: time lost per bit error at 1e-4", _ms(ack_lost), _ms(v3_lost),
                     _ratio(ack_lost or 0.0, v3_lost or 0.0), "seed 1: resends earlier"))
+    busy_ack = _lost_per_error(run("ack", BUSY_ERRORS.name), run("ack", BUSY.name))
+    busy_v3 = _lost_per_error(run(PLAIN, BUSY_ERRORS.name), run(PLAIN, BUSY.name))
+    rows.append(Row("ack: time lost per bit error at 1e-3, busy printer", _ms(busy_ack),
+                    _ms(busy_v3), _ratio(busy_ack or 0.0, busy_v3 or 0.0),
+                    "seed 1: resends earlier"))
     harsh = errors_condition(1e-3).name
     compact, plain = run("compact-oob", harsh), run(PLAIN, harsh)
     rows.append(Row("compact-oob: bytes to the host per command at 1e-3",
@@ -152,14 +165,15 @@ def _section(results: dict[tuple[str, ...], Any], sizes: dict[str, int]) -> Sect
         "Bit errors toward the printer, 250000 baud and 30 ms each way",
         ("variants", "rate", "errors", "resends", "time lost per error", "ran damaged",
          "bytes/cmd to host", "exactly once"))
-    for rate in lab.ERROR_RATES:
-        name = errors_condition(rate).name
-        reference = _lost_per_error(run(PLAIN, name), slow)
+    for rate, name, clean in [*((rate, errors_condition(rate).name, SLOW.name)
+                                for rate in lab.ERROR_RATES), (1e-3, BUSY_ERRORS.name, BUSY.name)]:
+        reference = _lost_per_error(run(PLAIN, name), run(PLAIN, clean))
         for variants in VARIANT_SETS:
             result = run(variants, name)
-            lost = _lost_per_error(result, run(variants, SLOW.name))
+            lost = _lost_per_error(result, run(variants, clean))
             errors_table.rows.append((
-                variants, f"{rate:g}", f"{result.bit_errors:,}", f"{result.resends:,}",
+                variants, f"{rate:g}" + (", busy printer" if clean == BUSY.name else ""),
+                f"{result.bit_errors:,}", f"{result.resends:,}",
                 f"{_ms(lost)} ({_pct(_ratio(lost or 0.0, reference or 0.0))})",
                 f"{result.damaged}", f"{result.to_host / result.commands:.1f}",
                 "yes" if result.exactly_once else f"NO {result.error}"))
