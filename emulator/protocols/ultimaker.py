@@ -175,33 +175,45 @@ class UltimakerProtocol:
             self.state = S.WAIT_FOR_PAYLOAD_SIZE
             return None
         if state is S.WAIT_FOR_PAYLOAD_SIZE:
-            if byte == 0 or byte > wire.MAX_PAYLOAD:
-                return self._reject(
-                    RejectReason.BAD_LENGTH,
-                    f"Payload size is too big for packet with sequence number: {self.expected_seq}",
-                )
-            self._length = byte
-            self._payload.clear()
-            self.state = S.WAIT_FOR_PAYLOAD
-            return None
+            return self._take_length(byte)
         if state is S.WAIT_FOR_PAYLOAD:
-            if not wire.PAYLOAD_MIN_BYTE <= byte <= wire.PAYLOAD_MAX_BYTE:
-                return self._reject(
-                    RejectReason.ILLEGAL_BYTE,
-                    f"Payload byte not in acceptable (ASCII) range at position #{len(self._payload)}",
-                )
-            self._payload.append(byte)
-            if len(self._payload) == self._length:
-                self.state = S.WAIT_FOR_CRC_HIGH
-            return None
+            return self._take_payload_byte(byte, S.WAIT_FOR_CRC_HIGH)
         if state is S.WAIT_FOR_CRC_HIGH:
             self._crc = byte << 8
             self.state = S.WAIT_FOR_CRC_LOW
             return None
         # WAIT_FOR_CRC_LOW: the packet is complete.
-        self.state = S.WAIT_FOR_HEADER_BYTE
         payload = bytes(self._payload)
-        if self._crc | byte != wire.packet_crc(self._seq, payload):
+        return self._finish(payload, self._crc | byte == wire.packet_crc(self._seq, payload))
+
+    def _take_length(self, length: int) -> PacketRejected | None:
+        if not 1 <= length <= wire.MAX_PAYLOAD:
+            return self._reject(
+                RejectReason.BAD_LENGTH,
+                f"Payload size is too big for packet with sequence number: {self.expected_seq}",
+            )
+        self._length = length
+        self._payload.clear()
+        self.state = ReceiverState.WAIT_FOR_PAYLOAD
+        return None
+
+    def _take_payload_byte(self, byte: int, then: ReceiverState) -> PacketRejected | None:
+        """One payload byte; after the last, the receiver waits for the check (`then`)."""
+        if not wire.PAYLOAD_MIN_BYTE <= byte <= wire.PAYLOAD_MAX_BYTE:
+            return self._reject(
+                RejectReason.ILLEGAL_BYTE,
+                f"Payload byte not in acceptable (ASCII) range at position #{len(self._payload)}",
+            )
+        self._payload.append(byte)
+        if len(self._payload) == self._length:
+            self._check.clear()
+            self.state = then
+        return None
+
+    def _finish(self, payload: bytes, check_matches: bool) -> Event:
+        """The whole packet is here: refused, or taken into the queue."""
+        self.state = ReceiverState.WAIT_FOR_HEADER_BYTE
+        if not check_matches:
             return self._reject(
                 RejectReason.CHECKSUM_MISMATCH,
                 f"Checksum mismatch for packet with sequence number: {self.expected_seq}",
@@ -213,7 +225,7 @@ class UltimakerProtocol:
                 f"{self.expected_seq}",
             )
         self._queued += 1
-        self.expected_seq = wire.next_seq(self.expected_seq)
+        self.expected_seq = self.format.next_seq(self.expected_seq)
         if self.variants.ack:
             self._output += self._frame(lab.ACK_KIND, self._seq)
         return CommandReceived(payload.decode("ascii"), self._seq)
@@ -256,49 +268,16 @@ class UltimakerProtocol:
             self.state = S.WAIT_FOR_PAYLOAD_SIZE
             return None
         if state is S.WAIT_FOR_PAYLOAD_SIZE:
-            length = packet.read_len(byte)
-            if not 1 <= length <= wire.MAX_PAYLOAD:
-                return self._reject(
-                    RejectReason.BAD_LENGTH,
-                    f"Payload size is too big for packet with sequence number: {self.expected_seq}",
-                )
-            self._length = length
-            self._payload.clear()
-            self.state = S.WAIT_FOR_PAYLOAD
-            return None
+            return self._take_length(packet.read_len(byte))
         if state is S.WAIT_FOR_PAYLOAD:
-            if not wire.PAYLOAD_MIN_BYTE <= byte <= wire.PAYLOAD_MAX_BYTE:
-                return self._reject(
-                    RejectReason.ILLEGAL_BYTE,
-                    f"Payload byte not in acceptable (ASCII) range at position #{len(self._payload)}",
-                )
-            self._payload.append(byte)
-            if len(self._payload) == self._length:
-                self._check.clear()
-                self.state = S.WAIT_FOR_CHECK
-            return None
+            return self._take_payload_byte(byte, S.WAIT_FOR_CHECK)
         # WAIT_FOR_CHECK
         self._check.append(byte)
         if len(self._check) < packet.check_chars:
             return None
-        self.state = S.WAIT_FOR_HEADER_BYTE
         payload = bytes(self._payload)
-        if packet.read_check(bytes(self._check)) != packet.check(self._seq, payload):
-            return self._reject(
-                RejectReason.CHECKSUM_MISMATCH,
-                f"Checksum mismatch for packet with sequence number: {self.expected_seq}",
-            )
-        if self._queued >= self.queue_size:
-            return self._reject(
-                RejectReason.QUEUE_FULL,
-                "Received packet could not be handled (buffer full), packet with sequence number: "
-                f"{self.expected_seq}",
-            )
-        self._queued += 1
-        self.expected_seq = packet.next_seq(self.expected_seq)
-        if self.variants.ack:
-            self._output += self._frame(lab.ACK_KIND, self._seq)
-        return CommandReceived(payload.decode("ascii"), self._seq)
+        return self._finish(
+            payload, packet.read_check(bytes(self._check)) == packet.check(self._seq, payload))
 
     def _reject(self, reason: RejectReason, message: str) -> PacketRejected:
         self.state = ReceiverState.WAIT_FOR_HEADER_BYTE
