@@ -129,6 +129,7 @@ class UltimakerCore(CommandQueue):
         self._round_trip: float | None = None
         self._round_trip_variation = 0.0
         self._received_frames = 0  # `a` frames heard
+        self._boot_heard = False  # a whole boot line, naming what the printer speaks
         self._acks_without_received = 0
         # Reading the printer (receive_data, next_event).
         self._parser = FrameParser(self.variants)
@@ -285,7 +286,7 @@ class UltimakerCore(CommandQueue):
         while (event := self._parser.next_event()) is not None:
             if isinstance(event, Ack):
                 self.room = event.room
-                if self.variants.ack and not self._received_frames:
+                if self.variants.ack and not self._received_frames and not self._boot_heard:
                     self._acks_without_received += 1
                     if self._acks_without_received >= ACKLESS_ACKS:
                         self._mismatch(None, "it executes packets but never says it received "
@@ -325,6 +326,7 @@ class UltimakerCore(CommandQueue):
         variants = announced(text)
         if variants is None and not text.startswith(BOOT_LINE):
             return
+        self._boot_heard = variants is not None  # it said what it speaks: no guessing
         if self._synchronised:  # (its list of variants may be damaged: it is a boot all the same)
             raise PrinterReset("the printer started again (its boot line came): it was reset, "
                                "and commands it had queued may be lost")
