@@ -11,6 +11,7 @@ from pathlib import Path
 from fake_marlin.emulator.protocols.stk500 import encode_message
 from fake_marlin.wire import commstack
 from fake_marlin.wire.checksums import xor8
+from fake_marlin.wire.ultimaker_variants import NAMES, parse_variants
 
 ROOT = Path(__file__).resolve().parent.parent
 CORPUS = ROOT / "fuzz" / "corpus"
@@ -25,6 +26,20 @@ def lines(*commands: str, start: int = 1) -> bytes:
         body = f"N{number} {command}".encode()
         out += body + b"*%d\n" % xor8(body)
     return out
+
+
+def lab_set(names: str) -> bytes:
+    """The first byte of a variant target's input (fuzz.targets.VARIANT_SETS): the set's index,
+    bit k for NAMES[k]."""
+    variants = set(parse_variants(names).names)
+    return bytes((sum(1 << bit for bit, name in enumerate(NAMES) if name in variants),))
+
+
+def lab_packets(names: str, *commands: str, start: int = 0) -> bytes:
+    """Packets in the variants' format (docs/protocols.md section 1.1), numbered from start."""
+    packet = parse_variants(names).packet
+    return b"".join(packet.encode(packet.next_seq(start, n), command.encode())
+                    for n, command in enumerate(commands))
 
 
 PING = bytes.fromhex("031901010101021a0100")  # docs/protocols.md section 3
@@ -47,6 +62,17 @@ STREAMS: dict[str, dict[str, bytes]] = {
         "vectors": WHOLE + bytes.fromhex("ffff0003473238c641ffff01044d313035045a"),
         "vectors-bytewise": BYTEWISE + bytes.fromhex("ffff0003473238c641ffff01044d313035045a"),
         "bad-crc-wrong-seq": b"\x80\x18" + bytes.fromhex("ffff0003473238c642ffff01044d313035045a"),
+    },
+    "ultimaker_variant_receiver": {  # docs/protocols.md section 1.1's vectors
+        "ack-compact": lab_set("ack,compact-oob") + WHOLE + lab_packets("ack", "G28", "M105"),
+        "crc8-bytewise": lab_set("crc8") + BYTEWISE + bytes.fromhex("ff0003473238d1"
+                                                                     "ff01044d3130353b"),
+        "sync-byte-cut": lab_set("sync-byte") + b"\x13\x0a"
+        + lab_packets("sync-byte", "G1 X100 Y200")[:9] + lab_packets("sync-byte", "G28", "M105"),
+        "7bit-crc8-wrap": lab_set("crc8,7bit") + WHOLE + lab_packets("crc8,7bit", "M105", "M114",
+                                                                     start=95),
+        "all-bad-check": lab_set(",".join(NAMES)) + b"\x80\x18"
+        + bytes.fromhex("1620224732384352") + lab_packets("crc8,sync-byte", "G28", "M105"),
     },
     "repetier_receiver": {
         "vectors": WHOLE + b"".join(REPETIER),
@@ -95,6 +121,14 @@ STREAMS: dict[str, dict[str, bytes]] = {
         + bytes.fromhex("0a6f3035313036380a" "0a6f3030304646380a" "0a713030304639380a")
         + b"ProtoError:Checksum mismatch\nLOG:boot\nWARNING:hot\nok\n",
         "command": b"\x03\x07G1 X10 Y20 F3000",
+    },
+    "host_ultimaker_variant_parser": {
+        "ack-compact-frames": lab_set("ack,compact-oob") + WHOLE
+        + b"l:Marlin started; protocol variants: ack,compact-oob\n\nq000F98\n\na050F6A\n"
+        b"d:e:not an error\n\no050F..\np:Checksum mismatch\ne:Heater\nw:hot\n\nr000F3E\n",
+        "plain-host-hears-a": lab_set("") + WHOLE + b"\na000FAA\nLOG:Marlin started\n",
+        "sync-command": lab_set("sync-byte") + b"\x03\x5fG1 X10 Y20 F3000",
+        "crc8-7bit-command": lab_set("crc8,7bit") + b"\x03\x07M105",
     },
     "host_repetier_parser": {
         "replies": WHOLE + b"ok 1\r\nskip 3\r\nok\r\n\r\nResend:4\r\nok\r\nwait\r\n"

@@ -38,6 +38,7 @@ from fake_marlin.wire import commstack as wire_cs
 from fake_marlin.wire import g2core as wire_g2
 from fake_marlin.wire import repetier as wire_rep
 from fake_marlin.wire import ultimaker as wire_um
+from fake_marlin.wire import ultimaker_variants as lab
 from fake_marlin.wire.gcode import canonical, remove_paren_comments, strip_comment
 
 # -- bugs found and reported, not yet fixed ---------------------------------------------------
@@ -187,6 +188,74 @@ def ultimaker_receiver(data: bytes) -> None:
                 ]
                 assert said == expected, (said, expected)
         assert not printer._input and len(printer._payload) <= wire_um.MAX_PAYLOAD
+        while queued:  # the printer catches up between two reads
+            release()
+
+
+# The protocol lab's variant sets (wire/ultimaker_variants.py), all 32: bit k of the index is
+# lab.NAMES[k] (1 ack, 2 compact-oob, 4 crc8, 8 sync-byte, 16 7bit).
+VARIANT_SETS = tuple(lab.Variants(*(bool(index >> bit & 1) for bit in range(len(lab.NAMES))))
+                     for index in range(1 << len(lab.NAMES)))
+
+
+def variant_split(data: bytes) -> tuple[lab.Variants, int, list[bytes]]:
+    """data[0] picks the variant set (VARIANT_SETS, modulo 32); the rest is split() as every
+    stream target's input."""
+    variants = VARIANT_SETS[(data[0] if data else 0) % len(VARIANT_SETS)]
+    return (variants, *split(data[1:]))
+
+
+def ultimaker_variant_receiver(data: bytes) -> None:
+    """UltimakerProtocol with the lab's variants (data[0] picks the set): the boot line, every
+    `a`, `o`, `r` frame and ProtoError line it says parse back the same on the host's
+    FrameParser with the same variants, and a response line comes back as data."""
+    variants, choice, chunks = variant_split(data)
+    printer = um.UltimakerProtocol(queue_size=1 + (choice & 7), variants=variants)
+    packet = printer.format
+    keep = printer.queue_size if choice & 8 else 0  # how many commands run late: QUEUE_FULL
+    room = choice >> 4
+    host = host_um.FrameParser(variants)
+    boot = host_events(host, printer.send(um.OutOfBand(um.OutOfBandKind.LOG,
+                                                       lab.boot_line(variants))))
+    assert boot == [host_um.Line(host_um.LineKind.LOG, lab.boot_line(variants))], boot
+    assert lab.announced(boot[0].text) == variants, boot
+    said = host_events(host, printer.send(um.RoomChanged(room)))
+    assert said == ([host_um.RoomInfo(room)] if room else []), said
+    queued: list[tuple[int, str]] = []
+
+    def release() -> None:
+        seq, text = queued.pop(0)
+        # The command's own text as its response, where plain v3 reads it as data at all (not a
+        # frame, not an out-of-band line): compact-oob escapes what looks like its own lines.
+        response = (text,) if host_um.parse_line(text) == host_um.Line(
+            host_um.LineKind.RESPONSE, text) else ()
+        said = host_events(host, printer.send(CommandDone(seq, room, response)))
+        expected = [host_um.Line(host_um.LineKind.RESPONSE, line) for line in response]
+        assert said == [*expected, host_um.Ack(seq, room)], (said, response)
+
+    for piece in chunks:
+        printer.receive_data(piece)
+        while (event := printer.next_event()) is not None:
+            if isinstance(event, CommandReceived):
+                assert event.number == packet.next_seq(printer.expected_seq, -1), event
+                assert wire_um.payload_error(event.text.encode("ascii")) is None, event
+                said = host_events(host, printer.data_to_send())
+                assert said == ([host_um.Received(event.number, printer.room)]
+                                if variants.ack else []), (said, event)
+                queued.append((event.number, event.text))
+                if len(queued) > keep:
+                    release()
+            else:
+                assert isinstance(event, um.PacketRejected), event
+                said = host_events(host, printer.data_to_send())
+                expected = [
+                    host_um.Line(host_um.LineKind.PROTO_ERROR, event.message),
+                    host_um.Reject(event.expected, printer.room),
+                ]
+                assert said == expected, (said, expected)
+        assert not printer._input and len(printer._payload) <= wire_um.MAX_PAYLOAD
+        assert len(printer._check) <= packet.check_chars
+        assert 0 <= printer.expected_seq < packet.sequence_modulus
         while queued:  # the printer catches up between two reads
             release()
 
@@ -448,6 +517,39 @@ def host_ultimaker_parser(data: bytes) -> None:
     assert printer.next_event() == CommandReceived(command, seq), packet
 
 
+def host_ultimaker_variant_parser(data: bytes) -> None:
+    """host FrameParser with the lab's variants (data[0] picks the set): any bytes are events
+    of its kinds; every frame and out-of-band line the printer can say parses back; a packet
+    the host encodes in the variants' format reaches UltimakerProtocol as the same command."""
+    variants, choice, chunks = variant_split(data)
+    parser = host_um.FrameParser(variants)
+    _parse_all(parser, chunks, host_um.Event)
+    packet = variants.packet
+    seq, room = choice % packet.sequence_modulus, (data[1] if len(data) > 1 else 0)
+    for kind, event in (("o", host_um.Ack(seq, room)), ("r", host_um.Reject(seq, room)),
+                        ("a", host_um.Received(seq, room)), ("q", host_um.RoomInfo(room))):
+        assert host_um.parse_line(wire_um.frame_body(kind, seq, room), variants) == event
+    text = printable(data[2:], wire_um.MAX_PAYLOAD)
+    printer = um.UltimakerProtocol(variants=variants)
+    if text:
+        for said_as, line_kind in ((um.OutOfBandKind.LOG, host_um.LineKind.LOG),
+                                   (um.OutOfBandKind.ERROR, host_um.LineKind.ERROR),
+                                   (um.OutOfBandKind.WARNING, host_um.LineKind.WARNING)):
+            said = host_events(host_um.FrameParser(variants),
+                               printer.send(um.OutOfBand(said_as, text)))
+            assert said == [host_um.Line(line_kind, text)], (said_as, text, said)
+    try:
+        encoded = host_um.encode_command(seq, text, packet)
+    except CommandError:
+        return
+    if packet.armored:  # no byte of a sync-byte packet but its start may be SYN or above 0x7F
+        body = encoded[packet.starts:]
+        assert max(body) < 0x80 and lab.SYN not in body, encoded
+    printer.expected_seq = seq
+    printer.receive_data(encoded)
+    assert printer.next_event() == CommandReceived(text, seq), encoded
+
+
 def host_repetier_parser(data: bytes) -> None:
     """host LineParser (Repetier); a command the host encodes (binary where it fits) reaches
     RepetierProtocol as the same command, by canonical() as the journals compare them."""
@@ -590,9 +692,10 @@ def scenario_loader(data: bytes) -> None:
 TARGETS: dict[str, Callable[[bytes], None]] = {
     target.__name__: target
     for target in (
-        marlin_receiver, ultimaker_receiver, repetier_receiver, commstack_receiver,
-        stk500_receiver, g2core_receiver, protocol_detector, host_marlin_parser,
-        host_ultimaker_parser, host_g2core_parser,
+        marlin_receiver, ultimaker_receiver, ultimaker_variant_receiver, repetier_receiver,
+        commstack_receiver, stk500_receiver, g2core_receiver, protocol_detector,
+        host_marlin_parser, host_ultimaker_parser, host_ultimaker_variant_parser,
+        host_g2core_parser,
         host_repetier_parser, commstack_frames, repetier_binary, gcode_parser, scenario_loader,
     )
 }
