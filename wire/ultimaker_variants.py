@@ -16,7 +16,7 @@ Plain v3 (no variant) is byte for byte what wire/ultimaker.py says.
 """
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 from fake_marlin.wire import ultimaker as v3
 from fake_marlin.wire.checksums import crc8_smbus, crc16_ccitt_false
@@ -74,6 +74,10 @@ class Variants:
 
 
 PLAIN = Variants()
+# Every set of variants, 32: bit k of the index is NAMES[k] (1 ack, 2 compact-oob, 4 crc8,
+# 8 sync-byte, 16 7bit). For the tests and the fuzz targets, which try them all.
+EVERY_SET = tuple(Variants(*(bool(index >> bit & 1) for bit in range(len(NAMES))))
+                  for index in range(1 << len(NAMES)))
 
 
 def parse_variants(text: str | None) -> Variants:
@@ -105,10 +109,14 @@ class PacketFormat:
     starts: int  # 1 or 2 start bytes
     armored: bool  # seq, len and check carried as characters 0x20..0x7F (sync-byte, 7bit)
     check_bits: int  # 16: CRC-16/CCITT-FALSE, 8: CRC-8/SMBUS; over seq, len, payload
+    # Plain v3's layout (wire/ultimaker.py's own code then encodes it): set once, since the
+    # host asks for every packet it sends.
+    is_v3: bool = field(init=False, compare=False, repr=False)
 
-    @property
-    def is_v3(self) -> bool:
-        return self == V3_PACKET
+    def __post_init__(self) -> None:
+        plain = (self.start, self.starts, self.armored, self.check_bits) == (
+            v3.HEADER_BYTE, 2, False, 16)
+        object.__setattr__(self, "is_v3", plain)
 
     @property
     def sequence_modulus(self) -> int:
@@ -119,11 +127,6 @@ class PacketFormat:
         if self.armored:
             return -(-self.check_bits // CHECK_DIGIT_BITS)
         return self.check_bits // 8
-
-    @property
-    def overhead(self) -> int:
-        """Bytes of a packet that are not payload."""
-        return self.starts + 2 + self.check_chars
 
     def check(self, seq: int, payload: bytes) -> int:
         data = bytes((seq, len(payload))) + payload
@@ -166,6 +169,8 @@ class PacketFormat:
 
     def encode(self, seq: int, payload: bytes) -> bytes:
         """One packet; the caller has checked payload_error(payload) and the sequence number."""
+        if self.is_v3:
+            return v3.encode_packet(seq, payload)
         return (bytes((self.start,) * self.starts)
                 + bytes((self.seq_byte(seq), self.len_byte(len(payload)))) + payload
                 + self.check_bytes(self.check(seq, payload)))
@@ -178,9 +183,8 @@ class PacketFormat:
 
     def packet_end(self, buffer: bytes, start: int) -> int | None:
         """For the fault layer: where the packet at `start` (at a start byte) ends; None if
-        it is not all here. Anything that cannot be a packet ends at once, a unit of noise."""
-        if self.is_v3:
-            return v3.packet_end(buffer, start)
+        it is not all here. Anything that cannot be a packet ends at once, a unit of noise.
+        (Plain v3's framer is wire/ultimaker.py's: to_printer_units.)"""
         header = start + self.starts
         if len(buffer) < header + 2:
             whole = buffer[start:header]
@@ -192,10 +196,6 @@ class PacketFormat:
             return header + 2
         end = header + 2 + length + self.check_chars
         return end if end <= len(buffer) else None
-
-    @property
-    def max_packet(self) -> int:
-        return self.overhead + v3.MAX_PAYLOAD
 
 
 V3_PACKET = PacketFormat(start=v3.HEADER_BYTE, starts=2, armored=False, check_bits=16)

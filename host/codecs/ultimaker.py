@@ -16,10 +16,7 @@ _FRAME = re.compile(r"([oraq])([0-9A-F]{2})([0-9A-F]{2})([0-9A-F]{2})")
 
 
 def encode_command(seq: int, command: str, packet: PacketFormat = lab.V3_PACKET) -> bytes:
-    payload = check_command(command)
-    if packet.is_v3:
-        return wire.encode_packet(seq, payload)
-    return packet.encode(seq, payload)
+    return packet.encode(seq, check_command(command))
 
 
 def check_command(command: str) -> bytes:
