@@ -121,8 +121,7 @@ class UltimakerCore(CommandQueue):
         self._printer_room: int | None = None
         self._last_ack_at: float | None = None
         self._ack_interval = 0.0  # between the last two `o` frames: how long a move takes
-        # The quickest answer yet to a packet sent once (its `o`, or its `a`): what no answer
-        # to a copy can beat. And until when each copy still on its way may draw an `r`.
+        # The quickest `o` yet to a packet sent once: what no answer to a copy can beat. And until when each copy still on its way may draw an `r`.
         self._least_round_trip: float | None = None
         self._strays: list[float] = []
         # The ack variant's round-trip estimate: smoothed, and its variation (None: no sample).
@@ -348,9 +347,14 @@ class UltimakerCore(CommandQueue):
         if position is None or position >= len(self._in_flight):
             return  # an echo of something already settled
         self._synchronised = True
-        for packet in self._in_flight[:position + 1]:
+        self._mark_received(position + 1, now, answered=True)
+
+    def _mark_received(self, count: int, now: float, answered: bool = False) -> None:
+        """The first `count` packets reached the printer; `answered`: this is their own answer
+        (an `a`), a round trip to measure for those sent once."""
+        for packet in self._in_flight[:count]:
             if packet.state is PacketState.SENT:
-                if packet.transmissions == 1 and not packet.needs_transmit:
+                if answered and packet.transmissions == 1 and not packet.needs_transmit:
                     self._sample_round_trip(now - packet.since)
                 packet.state = PacketState.RECEIVED
                 packet.needs_transmit = False
@@ -415,11 +419,7 @@ class UltimakerCore(CommandQueue):
             self._renumber(seq)
             return
         self._synchronised = True
-        for packet in self._in_flight[:position]:
-            if packet.state is PacketState.SENT:
-                packet.state = PacketState.RECEIVED
-                packet.needs_transmit = False
-                packet.since = now
+        self._mark_received(position, now)
         if position == len(self._in_flight):
             return  # it expects what we have not sent yet: it has all we sent, refuses none
         if seq == self._refused_seq:
