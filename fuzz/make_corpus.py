@@ -11,7 +11,7 @@ from pathlib import Path
 from fake_marlin.emulator.protocols.stk500 import encode_message
 from fake_marlin.wire import commstack
 from fake_marlin.wire.checksums import xor8
-from fake_marlin.wire.ultimaker_variants import NAMES, parse_variants
+from fake_marlin.wire.ultimaker_variants import EVERY_SET, NAMES, parse_variants
 
 ROOT = Path(__file__).resolve().parent.parent
 CORPUS = ROOT / "fuzz" / "corpus"
@@ -29,10 +29,8 @@ def lines(*commands: str, start: int = 1) -> bytes:
 
 
 def lab_set(names: str) -> bytes:
-    """The first byte of a variant target's input (fuzz.targets.VARIANT_SETS): the set's index,
-    bit k for NAMES[k]."""
-    variants = set(parse_variants(names).names)
-    return bytes((sum(1 << bit for bit, name in enumerate(NAMES) if name in variants),))
+    """The first byte of a variant target's input: the set's index in EVERY_SET."""
+    return bytes((EVERY_SET.index(parse_variants(names)),))
 
 
 def lab_packets(names: str, *commands: str, start: int = 0) -> bytes:

@@ -153,63 +153,26 @@ def marlin_receiver(data: bytes) -> None:
     assert not printer._input and not printer._output
 
 
-def ultimaker_receiver(data: bytes) -> None:
-    """UltimakerProtocol; ProtoError, r and o frames must parse back on the host."""
-    choice, chunks = split(data)
-    printer = um.UltimakerProtocol(queue_size=1 + (choice & 7))
-    keep = printer.queue_size if choice & 8 else 0  # how many commands run late: QUEUE_FULL
-    room = choice >> 4
-    host = host_um.FrameParser()
-    boot = host_events(host, printer.send(um.RoomChanged(room)))
-    assert boot == ([host_um.RoomInfo(room)] if room else []), boot
-    queued: list[int] = []
-
-    def release() -> None:
-        seq = queued.pop(0)
-        said = host_events(host, printer.send(CommandDone(seq, room)))
-        assert said == [host_um.Ack(seq, room)], said
-
-    for piece in chunks:
-        printer.receive_data(piece)
-        while (event := printer.next_event()) is not None:
-            if isinstance(event, CommandReceived):
-                assert event.number == wire_um.next_seq(printer.expected_seq, -1), event
-                assert wire_um.payload_error(event.text.encode("ascii")) is None, event
-                assert printer.data_to_send() == b""
-                queued.append(event.number)
-                if len(queued) > keep:
-                    release()
-            else:
-                assert isinstance(event, um.PacketRejected), event
-                said = host_events(host, printer.data_to_send())
-                expected = [
-                    host_um.Line(host_um.LineKind.PROTO_ERROR, event.message),
-                    host_um.Reject(event.expected, printer.room),
-                ]
-                assert said == expected, (said, expected)
-        assert not printer._input and len(printer._payload) <= wire_um.MAX_PAYLOAD
-        while queued:  # the printer catches up between two reads
-            release()
-
-
-# The protocol lab's variant sets (wire/ultimaker_variants.py), all 32: bit k of the index is
-# lab.NAMES[k] (1 ack, 2 compact-oob, 4 crc8, 8 sync-byte, 16 7bit).
-VARIANT_SETS = tuple(lab.Variants(*(bool(index >> bit & 1) for bit in range(len(lab.NAMES))))
-                     for index in range(1 << len(lab.NAMES)))
-
-
 def variant_split(data: bytes) -> tuple[lab.Variants, int, list[bytes]]:
-    """data[0] picks the variant set (VARIANT_SETS, modulo 32); the rest is split() as every
-    stream target's input."""
-    variants = VARIANT_SETS[(data[0] if data else 0) % len(VARIANT_SETS)]
+    """data[0] picks the protocol lab's variant set (lab.EVERY_SET, modulo 32); the rest is
+    split() as every stream target's input."""
+    variants = lab.EVERY_SET[(data[0] if data else 0) % len(lab.EVERY_SET)]
     return (variants, *split(data[1:]))
+
+
+def ultimaker_receiver(data: bytes) -> None:
+    """UltimakerProtocol, plain v3: as ultimaker_variant_receiver, with no variant."""
+    _ultimaker_receiver(lab.PLAIN, *split(data))
 
 
 def ultimaker_variant_receiver(data: bytes) -> None:
     """UltimakerProtocol with the lab's variants (data[0] picks the set): the boot line, every
     `a`, `o`, `r` frame and ProtoError line it says parse back the same on the host's
     FrameParser with the same variants, and a response line comes back as data."""
-    variants, choice, chunks = variant_split(data)
+    _ultimaker_receiver(*variant_split(data))
+
+
+def _ultimaker_receiver(variants: lab.Variants, choice: int, chunks: list[bytes]) -> None:
     printer = um.UltimakerProtocol(queue_size=1 + (choice & 7), variants=variants)
     packet = printer.format
     keep = printer.queue_size if choice & 8 else 0  # how many commands run late: QUEUE_FULL
@@ -239,9 +202,12 @@ def ultimaker_variant_receiver(data: bytes) -> None:
             if isinstance(event, CommandReceived):
                 assert event.number == packet.next_seq(printer.expected_seq, -1), event
                 assert wire_um.payload_error(event.text.encode("ascii")) is None, event
-                said = host_events(host, printer.data_to_send())
-                assert said == ([host_um.Received(event.number, printer.room)]
-                                if variants.ack else []), (said, event)
+                out = printer.data_to_send()
+                if variants.ack:
+                    said = host_events(host, out)
+                    assert said == [host_um.Received(event.number, printer.room)], (said, event)
+                else:
+                    assert out == b"", (out, event)
                 queued.append((event.number, event.text))
                 if len(queued) > keep:
                     release()
@@ -497,24 +463,9 @@ def host_marlin_parser(data: bytes) -> None:
 
 
 def host_ultimaker_parser(data: bytes) -> None:
-    """host FrameParser; every frame the printer can build parses back; a packet the host
-    encodes reaches UltimakerProtocol as the same command."""
+    """host FrameParser, plain v3: as host_ultimaker_variant_parser, with no variant."""
     choice, chunks = split(data)
-    parser = host_um.FrameParser()
-    _parse_all(parser, chunks, host_um.Event)
-    seq, room = choice % wire_um.SEQUENCE_MODULUS, (data[0] if data else 0)
-    for kind, event in (("o", host_um.Ack(seq, room)), ("r", host_um.Reject(seq, room)),
-                        ("q", host_um.RoomInfo(room))):
-        assert host_um.parse_line(wire_um.frame_body(kind, seq, room)) == event
-    command = printable(data[2:], wire_um.MAX_PAYLOAD)
-    try:
-        packet = host_um.encode_command(seq, command)
-    except CommandError:
-        return
-    printer = um.UltimakerProtocol()
-    printer.expected_seq = seq
-    printer.receive_data(packet)
-    assert printer.next_event() == CommandReceived(command, seq), packet
+    _host_ultimaker_parser(lab.PLAIN, choice, chunks, data[0] if data else 0, data[2:])
 
 
 def host_ultimaker_variant_parser(data: bytes) -> None:
@@ -522,14 +473,19 @@ def host_ultimaker_variant_parser(data: bytes) -> None:
     of its kinds; every frame and out-of-band line the printer can say parses back; a packet
     the host encodes in the variants' format reaches UltimakerProtocol as the same command."""
     variants, choice, chunks = variant_split(data)
+    _host_ultimaker_parser(variants, choice, chunks, data[1] if len(data) > 1 else 0, data[2:])
+
+
+def _host_ultimaker_parser(variants: lab.Variants, choice: int, chunks: list[bytes], room: int,
+                           rest: bytes) -> None:
     parser = host_um.FrameParser(variants)
     _parse_all(parser, chunks, host_um.Event)
     packet = variants.packet
-    seq, room = choice % packet.sequence_modulus, (data[1] if len(data) > 1 else 0)
+    seq = choice % packet.sequence_modulus
     for kind, event in (("o", host_um.Ack(seq, room)), ("r", host_um.Reject(seq, room)),
                         ("a", host_um.Received(seq, room)), ("q", host_um.RoomInfo(room))):
         assert host_um.parse_line(wire_um.frame_body(kind, seq, room), variants) == event
-    text = printable(data[2:], wire_um.MAX_PAYLOAD)
+    text = printable(rest, wire_um.MAX_PAYLOAD)
     printer = um.UltimakerProtocol(variants=variants)
     if text:
         for said_as, line_kind in ((um.OutOfBandKind.LOG, host_um.LineKind.LOG),

@@ -54,9 +54,7 @@ from fake_marlin.wire.ultimaker_variants import (
 )
 
 BIN = Path(sys.executable).parent
-# Every set of variants: bit k of the index is NAMES[k] (1 ack, 2 compact-oob, 4 crc8,
-# 8 sync-byte, 16 7bit).
-ALL_SETS = tuple(Variants(*(bool(index >> bit & 1) for bit in range(5))) for index in range(32))
+ALL_SETS = lab.EVERY_SET  # bit k of the index is NAMES[k]
 V = parse_variants
 JOB = ["G28", *(f"G1 X{n % 40} Y{n % 17} F6000" for n in range(60)), "M105", "M400"]
 
@@ -659,6 +657,18 @@ def resend_delays(stream: Recording, payload: bytes) -> list[float]:
     return [when - times[0] for when in times[1:]]
 
 
+async def print_recorded(job: list[str], variants: str = "", faults=()):
+    """Our host prints `job` to a memory printer at 250000 baud, every command run once: its
+    summary, and the stream that saw what it sent."""
+    async with memory_printer(protocol="ultimaker", variants=variants, faults=faults,
+                              baud=250000) as printer:
+        stream = Recording(printer.open())
+        async with connect(stream, options=ClientOptions(variants=variants)) as host:
+            summary = await host.print_commands(job)
+        assert printer.journal == job
+    return summary, stream
+
+
 BUSY_JOB = ["M105", "G4 S30", "M114"]  # the last packet lost while the printer dwells
 LOSE_THIRD = [{"kind": "drop", "direction": "to-printer", "nth": 3}]
 
@@ -667,12 +677,7 @@ LOSE_THIRD = [{"kind": "drop", "direction": "to-printer", "nth": 3}]
                                       "ack,crc8,7bit"])
 async def test_with_ack_a_lost_packet_is_resent_at_once_though_the_printer_is_busy(
         autojump_clock, variants):
-    async with memory_printer(protocol="ultimaker", variants=variants, faults=LOSE_THIRD,
-                              baud=250000) as printer:
-        stream = Recording(printer.open())
-        async with connect(stream, options=ClientOptions(variants=variants)) as host:
-            summary = await host.print_commands(BUSY_JOB)
-        assert printer.journal == BUSY_JOB
+    summary, stream = await print_recorded(BUSY_JOB, variants, LOSE_THIRD)
     (delay,) = resend_delays(stream, b"M114")
     assert delay < 0.1  # a round trip or two, not the 2 s timeout: G4 dwells for 30 s
     assert (summary.resends, summary.timeouts) == (1, 1)
@@ -681,11 +686,7 @@ async def test_with_ack_a_lost_packet_is_resent_at_once_though_the_printer_is_bu
 
 async def test_without_ack_the_same_loss_waits_for_the_timeout_after_the_printer_is_done(
         autojump_clock):
-    async with memory_printer(protocol="ultimaker", faults=LOSE_THIRD, baud=250000) as printer:
-        stream = Recording(printer.open())
-        async with connect(stream) as host:
-            summary = await host.print_commands(BUSY_JOB)
-        assert printer.journal == BUSY_JOB
+    summary, stream = await print_recorded(BUSY_JOB, faults=LOSE_THIRD)
     (delay,) = resend_delays(stream, b"M114")
     assert 32 <= delay < 32.1  # G4's 30 s, then 2 s of silence
     assert (summary.resends, summary.timeouts) == (1, 1)
@@ -696,12 +697,7 @@ async def test_a_lost_packet_with_one_behind_it_is_resent_for_the_r_that_one_dra
         autojump_clock, variants):
     lose_second = [{"kind": "drop", "direction": "to-printer", "nth": 2}]
     job = ["M105", "M114", "M115"]
-    async with memory_printer(protocol="ultimaker", variants=variants, faults=lose_second,
-                              baud=250000) as printer:
-        stream = Recording(printer.open())
-        async with connect(stream, options=ClientOptions(variants=variants)) as host:
-            summary = await host.print_commands(job)
-        assert printer.journal == job
+    summary, stream = await print_recorded(job, variants, lose_second)
     (delay,) = resend_delays(stream, b"M114")
     assert delay < 0.1 and summary.rejects >= 1
 
