@@ -2,11 +2,15 @@
 
 import errno
 import os
+import termios
 
 import serial
 import trio
 
 from fake_marlin.host.errors import ConnectionLost, PortError
+
+
+PTY_DIRECTORY = "/dev/pts/"
 
 
 class SerialPort:
@@ -18,6 +22,11 @@ class SerialPort:
 
     @classmethod
     def open(cls, path: str, baudrate: int, bytesize: int = 8) -> "SerialPort":
+        if os.path.realpath(path).startswith(PTY_DIRECTORY):
+            # A pseudo-terminal carries whole bytes whatever its character size (the emulator
+            # keeps 7 bits of them itself), and Linux refuses CS7 on one that has had a custom
+            # rate such as 250000 set (EINVAL): only a real UART is given another size.
+            bytesize = serial.EIGHTBITS
         try:
             device = serial.Serial(path, baudrate, bytesize=bytesize, timeout=0, exclusive=True)
         except serial.SerialException as error:
@@ -28,7 +37,7 @@ class SerialPort:
             else:
                 reason = str(error)
             raise PortError(f"cannot open {path}: {reason}") from None
-        except (OSError, ValueError) as error:
+        except (OSError, ValueError, termios.error) as error:
             raise PortError(f"cannot open {path}: {error}") from None
         return cls(device, path)
 

@@ -106,3 +106,22 @@ def test_a_plain_host_against_a_variant_printer_stops_with_exit_1_and_runs_nothi
     assert again.returncode == 0, again.stderr
     assert again.stdout.startswith("X:0.00 Y:0.00")
     assert printer.journal == ["M114"]
+
+
+def test_a_7bit_host_opens_the_same_pty_again_and_again(tmp_path):
+    # Linux refuses CS7 (EINVAL) on a pty once a rate such as 250000 has been set on it: the
+    # second `fake-marlin-host` on the same printer died with a termios traceback.
+    printer = Printer("--protocol", "ultimaker", "--variant", "crc8,7bit")
+    try:
+        for _ in range(3):
+            done = run("fake-marlin-host", "send", "--variant", "crc8,7bit", printer.port, "M105",
+                       timeout=30)
+            assert done.returncode == 0 and done.stdout.startswith("T:"), done.stderr
+    finally:
+        printer.stop()
+
+
+def test_a_port_that_refuses_its_settings_is_one_line_not_a_traceback(tmp_path):
+    done = run("fake-marlin-host", "send", "/dev/null", "M105", timeout=30)
+    assert done.returncode == 1 and "Traceback" not in done.stderr, done.stderr
+    assert done.stderr.startswith("fake-marlin-host: cannot open /dev/null"), done.stderr
