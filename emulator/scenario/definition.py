@@ -11,7 +11,7 @@ from pathlib import Path
 
 from fake_marlin.emulator.faults.layer import RATE_KINDS, FaultConfig, with_rate
 from fake_marlin.emulator.faults.rules import LINK_KINDS, FaultKind, FaultRule, Trigger
-from fake_marlin.emulator.firmware import Firmware, ProfileError, Quirks, load_profile
+from fake_marlin.emulator.firmware import Firmware, Profile, ProfileError, Quirks, load_profile
 from fake_marlin.emulator.firmware.quirks import read_quirks
 from fake_marlin.emulator.link.conditions import LinkConditions
 from fake_marlin.emulator.server.lifecycle import ServerConfig
@@ -58,10 +58,11 @@ class PrinterSetup:
 
     def make_firmware(self, number: int = 1, seed: int = 0, uuid: str | None = None,
                       serial: str | None = None, machine_name: str | None = None,
-                      capabilities: dict[str, bool] | None = None) -> Firmware:
+                      capabilities: dict[str, bool] | None = None,
+                      profile: Profile | None = None) -> Firmware:
         """Printer `number`'s firmware, as this setup says (its identity from seed and number
-        unless given)."""
-        return Firmware.make(self.firmware, seed, number, self.quirks, uuid, serial,
+        unless given); `profile`, its firmware's profile already loaded (a farm loads each once)."""
+        return Firmware.make(profile or self.firmware, seed, number, self.quirks, uuid, serial,
                              machine_name, capabilities)
 
     def server_config(self, faults: FaultConfig) -> ServerConfig:
