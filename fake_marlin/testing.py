@@ -98,10 +98,12 @@ class FakePrinter:
         program: Sequence[str] | None = None,
         link: Path | None = None,
         printers: int = 1,
+        first_number: int = 1,
     ) -> None:
         self.directory = directory
         self.link = link  # the symlink to the pty, if one was asked for
         self.printers = printers
+        self.first_number = first_number  # the number of its first printer (first_number=)
         self._keep_directory = keep_directory
         self._journal_path = directory / ("journal.log" if printers == 1 else "journal-{n}.log")
         self._control_path = directory / "control.sock"
@@ -184,9 +186,10 @@ class FakePrinter:
             return []
 
     def printer(self, number: int) -> "FarmPrinter":
-        """Printer `number` (from 1) of a process started with printers=N."""
-        if not 1 <= number <= self.printers:
-            raise IndexError(f"printer {number}: this process serves printers 1 to {self.printers}")
+        """Printer `number` (from 1, or first_number=) of a process started with printers=N."""
+        first, last = self.first_number, self.first_number + self.printers - 1
+        if not first <= number <= last:
+            raise IndexError(f"printer {number}: this process serves printers {first} to {last}")
         return FarmPrinter(self, number)
 
     @property
@@ -243,7 +246,8 @@ class FakePrinter:
         report = self._crash_report()
         failed = died_on_its_own or self.returncode != 0 or "Traceback" in self.stderr
         self._final = (
-            self.stderr, [self._read_journal(n) for n in range(1, self.printers + 1)]
+            self.stderr, [self._read_journal(n) for n in
+                          range(self.first_number, self.first_number + self.printers)]
         )
         if not self._keep_directory:
             shutil.rmtree(self.directory, ignore_errors=True)
@@ -271,14 +275,14 @@ class FarmPrinter:
 
     @property
     def port(self) -> str:
-        return self.process.ports[self.number - 1]
+        return self.process.ports[self.number - self.process.first_number]
 
     @property
     def journal(self) -> list[str]:
         process = self.process
         process._check_alive()
         if process._final is not None:
-            return list(process._final[1][self.number - 1])
+            return list(process._final[1][self.number - process.first_number])
         return process._read_journal(self.number)
 
     @property
@@ -315,6 +319,8 @@ class PrinterOptions(TypedDict, total=False):
     capabilities: Mapping[str, bool]  # M115 Cap: lines, e.g. {"AUTOREPORT_TEMP": False}
     link: str | os.PathLike[str]  # also make this path a symlink to the pty ({n} with printers)
     printers: int  # serve this many printers from one process: FakePrinter.printer(n)
+    processes: int  # spread the printers over this many processes (one control socket still)
+    first_number: int  # the first printer's number (and identity) in a larger farm
     extra_args: Sequence[str]  # more arguments, as on the command line
 
 
@@ -374,6 +380,10 @@ def command_line(options: PrinterOptions) -> list[str]:
         args += ["--link", os.fspath(options["link"])]
     if options.get("printers", 1) != 1:
         args += ["--printers", str(options["printers"])]
+    if options.get("processes", 1) != 1:
+        args += ["--processes", str(options["processes"])]
+    if "first_number" in options:
+        args += ["--first-number", str(options["first_number"])]
     return [*args, *options.get("extra_args", ())]
 
 
@@ -396,7 +406,8 @@ def start_printer(
         args += ["--sd-dir", str(directory / ("sd" if printers == 1 else "sd-{n}"))]
     link = options.get("link")
     return FakePrinter(
-        args, directory, keep_directory, program, None if link is None else Path(link), printers
+        args, directory, keep_directory, program, None if link is None else Path(link), printers,
+        options.get("first_number", 1),
     )
 
 

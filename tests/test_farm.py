@@ -121,7 +121,7 @@ async def test_printers_share_a_process_and_nothing_else(fake_printer_factory, t
     listed = farm.control.printers()
     assert [(p["printer"], p["path"]) for p in listed] == list(enumerate(farm.ports, 1))
     assert [p["boots"] for p in listed] == [1, 2, 1]  # only the port opened reset
-    with pytest.raises(ControlRequestError, match="serves 3 printers: say which"):
+    with pytest.raises(ControlRequestError, match="3 printers are served here: say which"):
         farm.control.state()
     assert farm.printer(2).control.state()["position"]["X"] == 40
     with pytest.raises(IndexError):

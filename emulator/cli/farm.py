@@ -3,6 +3,9 @@
 A farm file is TOML: one `[[printer]]` table per kind of printer, with the keys of a
 scenario's `[printer]` table plus these:
 
+    processes = 4                 # (top level) spread the printers over 4 processes (--processes)
+    first_number = 21             # (top level) its first printer is number 21 (--first-number)
+
     count = 10                    # this many printers alike (default 1)
     scenario = "noisy.toml"       # printer settings and faults from a scenario (its job unused)
     seed = 3                      # for its random faults; printer k of a count gets seed + k
@@ -40,7 +43,9 @@ from fake_marlin.emulator.scenario.definition import (
     read_toml,
 )
 
-MAX_PRINTERS = 10_000  # more than one process can serve; a typo, not a farm
+MAX_PRINTERS = 10_000  # more than one machine should serve; a typo, not a farm
+MAX_PROCESSES = 64
+MAX_FIRST_NUMBER = 1_000_000
 _FARM_KEYS = ("count", "scenario", "seed", "link", "journal", "sd_dir", "tcp", "rfc2217", "fault",
               "uuid", "serial", "machine_name", "eeprom_file")
 _IDENTITY_KEYS = ("uuid", "serial", "machine_name")
@@ -83,13 +88,13 @@ def parse_address(text: str | int) -> Address:
         raise ValueError(str(error)) from None
 
 
-def copies(plan: PrinterPlan, count: int, first: int = 1) -> list[PrinterPlan]:
+def copies(plan: PrinterPlan, count: int, first: int = 1, seed_from: int = 0) -> list[PrinterPlan]:
     """`count` printers like `plan`, numbered from `first`: each its own {n} paths, the next
-    port, and the next seed (so that their random faults differ)."""
+    port, and the next seed (so that their random faults differ), from `plan`'s + `seed_from`."""
     out = []
     for k in range(count):
         number = first + k
-        faults = dataclasses.replace(plan.faults, seed=plan.faults.seed + k)
+        faults = dataclasses.replace(plan.faults, seed=plan.faults.seed + seed_from + k)
         out.append(dataclasses.replace(
             plan, number=number, faults=faults,
             link=numbered(plan.link, number), journal=numbered(plan.journal, number),
@@ -127,11 +132,27 @@ def check_patterns(plans: list[PrinterPlan]) -> None:
             ports[where] = plan.number
 
 
-def load_farm(path: str | Path) -> list[PrinterPlan]:
+@dataclass(frozen=True)
+class Farm:
+    """A farm file: its printers, and how many processes serve them (None: not said)."""
+
+    plans: list[PrinterPlan]
+    processes: int | None = None
+
+
+def load_farm(path: str | Path, first_number: int | None = None) -> list[PrinterPlan]:
+    return read_farm(path, first_number).plans
+
+
+def read_farm(path: str | Path, first_number: int | None = None) -> Farm:
+    """The farm file at `path`; `first_number` (--first-number) over its own `first_number`."""
     path = Path(path)
     top = TableReader(path, "", read_toml(path))
     entries = top.get("printer", list, [])
+    processes = top.get("processes", int, None, minimum=1, maximum=MAX_PROCESSES)
+    own_first = top.get("first_number", int, 1, minimum=1, maximum=MAX_FIRST_NUMBER)
     top.finish()
+    first = own_first if first_number is None else first_number
     if not entries:
         raise FarmError(f"{path}: no [[printer]] tables: a farm needs at least one printer")
     plans: list[PrinterPlan] = []
@@ -139,14 +160,17 @@ def load_farm(path: str | Path) -> list[PrinterPlan]:
         where = f"[[printer]] #{index} "
         if not isinstance(entry, dict):
             raise FarmError(f"{path}: {where}must be a table")
-        plans += _entry(path, where, entry, first=len(plans) + 1)
+        plans += _entry(path, where, entry, first=first + len(plans))
         if len(plans) > MAX_PRINTERS:
             raise FarmError(f"{path}: more than {MAX_PRINTERS} printers")
     try:
         check_patterns(plans)
     except FarmError as error:
         raise FarmError(f"{path}: {error}") from None
-    return plans
+    if processes is not None and processes > len(plans):
+        raise FarmError(f"{path}: processes = {processes}, but the farm has {len(plans)} "
+                        "printer(s): at most one process each")
+    return Farm(plans, processes)
 
 
 def _entry(path: Path, where: str, entry: dict, first: int) -> list[PrinterPlan]:

@@ -59,7 +59,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     if args.command is None:
-        return printers.run(parser, args)
+        return printers.run(parser, args, argv)
     code: int = args.run(args)
     return code
 

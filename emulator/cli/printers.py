@@ -8,6 +8,7 @@ import signal
 import sys
 import tempfile
 import tomllib
+from collections.abc import Sequence
 from pathlib import Path
 
 import trio
@@ -16,27 +17,33 @@ from fake_marlin.emulator.control.server import Controller, check_control_path, 
 from fake_marlin.emulator.faults.layer import FaultConfig, parse_fault
 from fake_marlin.emulator.journal.writer import Journal
 from fake_marlin.emulator.cli.links import (
+    Address,
     LinkError,
     add_link_arguments,
     check_link_arguments,
     make_link,
+    tcp_address,
 )
 from fake_marlin.emulator.link.pty import PtyLink
 from fake_marlin.emulator.link.tcp import TcpLink
-from fake_marlin.emulator.firmware import load_profile, shipped
+from fake_marlin.emulator.firmware import Profile, load_profile, shipped
 from fake_marlin.emulator.firmware.quirks import KINDS as QUIRK_KINDS, NAMES as QUIRK_NAMES
 from fake_marlin.emulator.firmware.quirks import read_quirks
 from fake_marlin.emulator.printer.eeprom import EepromFileError
 from fake_marlin.emulator.printer.model import Printer
 from fake_marlin.emulator.tables import TableError, TableReader
 from fake_marlin.emulator.cli.farm import (
+    MAX_FIRST_NUMBER,
     MAX_PRINTERS,
+    MAX_PROCESSES,
     PrinterPlan,
     check_patterns,
     copies,
-    load_farm,
     numbered,
+    read_farm,
 )
+from fake_marlin.emulator.cli.limits import explain, files_needed, pty_problem, raise_file_limit
+from fake_marlin.emulator.cli.processes import serve_processes
 from fake_marlin.emulator.scenario.definition import PrinterSetup, ScenarioError, add_fault_table
 from fake_marlin.emulator.scenario.definition import load as load_scenario
 from fake_marlin.emulator.server.clock import ScaledClock
@@ -100,6 +107,22 @@ def _printer_count(text: str) -> int:
     return int(text)
 
 
+def _whole(low: int, high: int):
+    def parse(text: str) -> int:
+        if not text.isdigit() or not low <= int(text) <= high:
+            raise argparse.ArgumentTypeError(f"must be a whole number from {low} to {high:,}, "
+                                             f"got {text!r}")
+        return int(text)
+    return parse
+
+
+def _slice(text: str) -> slice:
+    start, _, stop = text.partition(":")
+    if not start.isdigit() or not stop.isdigit() or int(start) >= int(stop):
+        raise argparse.ArgumentTypeError(f"expected START:STOP, got {text!r}")
+    return slice(int(start), int(stop))
+
+
 def _json_table(text: str) -> dict[str, object]:
     try:
         table = json.loads(text)
@@ -159,6 +182,20 @@ def add_arguments(parser: argparse._ActionsContainer) -> None:
         help="serve N independent printers from this process, one pty each; their paths are "
         "printed one per line, in order (default 1)",
     )
+    parser.add_argument(
+        "--processes", type=_whole(1, MAX_PROCESSES), metavar="K",
+        help="spread the printers over K processes, on as many cores (default 1): numbers, "
+        "paths, ports and seeds as if one process served them, one --control socket for all; "
+        "see docs/farm.md",
+    )
+    parser.add_argument(
+        "--first-number", type=_whole(1, MAX_FIRST_NUMBER), metavar="N",
+        help="this process serves printers N, N+1, ... of a larger farm (default 1): their "
+        "numbers, {n} paths, seeds and identities (UUID, serial, machine name) follow, so that "
+        "no two printers of the farm share them; TCP ports still count from the port given",
+    )
+    # A child of --processes: serve only these printers of the plan (processes.py).
+    parser.add_argument("--slice", type=_slice, help=argparse.SUPPRESS)
     parser.add_argument(
         "--farm", metavar="FILE",
         help="serve the printers a farm file describes (TOML: [[printer]] tables with count, "
@@ -226,6 +263,12 @@ def add_arguments(parser: argparse._ActionsContainer) -> None:
     parser.add_argument("--control", metavar="SOCKET",
                         help="serve the control channel (JSON lines) on this Unix socket")
     parser.add_argument(
+        "--web", type=tcp_address, metavar="[HOST:]PORT",
+        help="serve a live view of the printers on http://HOST:PORT/ (HOST 127.0.0.1 unless "
+        "given; PORT 0 takes a free one; the address is said on stderr): one row per printer, "
+        "and each printer's page with its wire and plots; see docs/web.md",
+    )
+    parser.add_argument(
         "--boot-delay", type=_non_negative_float, default=0.0, metavar="SECONDS",
         help="simulated time a reset takes before the printer answers (default 0)",
     )
@@ -257,28 +300,89 @@ class _Symlink:
         self.target = target
 
 
-async def _serve_until_signalled(printers: list["_Running"], control: str | None) -> None:
+async def _serve_until_signalled(printers: list["_Running"], control: str | None,
+                                 web: Address | None, child: bool) -> None:
     with trio.open_signal_receiver(signal.SIGINT, signal.SIGTERM, signal.SIGHUP) as signals:
         async with trio.open_nursery() as nursery:
+            stop = _Stop(nursery.cancel_scope)
             for printer in printers:
-                await nursery.start(printer.server.run)
+                await nursery.start(stop.run, printer.server)
+            servers = [printer.server for printer in printers]
+            numbers = [printer.plan.number for printer in printers]
             if control:
-                controller = Controller([printer.server for printer in printers])
-                await nursery.start(serve_control, control, controller)
+                await nursery.start(serve_control, control, Controller(servers, numbers))
+            if web is not None:
+                from fake_marlin.emulator.cli.web import start_web
+                from fake_marlin.emulator.web.source import LocalFarm
+
+                paths = [printer.link.path for printer in printers]
+                await start_web(nursery, web, LocalFarm(servers, numbers, paths))
+            if child:
+                nursery.start_soon(_stop_when_parent_goes, stop)
             # Every printer is up before any path is printed: a farm's host may open them all
             # as soon as it reads the list.
             print("\n".join(printer.link.path for printer in printers), flush=True)
             async for _ in signals:
-                nursery.cancel_scope.cancel()
+                stop()
                 break
+
+
+class _Stop:
+    """Stops every printer of the process, then the rest (control channel, live view). Each
+    printer runs in a cancel scope of its own, which catches its own cancellation, and the
+    nursery's is cancelled only when they have all ended: the nursery then has no exception
+    group of thousands of Cancelled to take apart, which took longer than the rest of a stop."""
+
+    def __init__(self, nursery_scope: trio.CancelScope) -> None:
+        self._nursery_scope = nursery_scope
+        self._scopes: list[trio.CancelScope] = []
+        self._running = 0
+
+    async def run(self, server: PrinterServer, task_status=trio.TASK_STATUS_IGNORED) -> None:
+        self._running += 1
+        try:
+            with trio.CancelScope() as scope:
+                self._scopes.append(scope)
+                await server.run(task_status=task_status)
+        finally:
+            self._running -= 1
+            if not self._running:
+                self._nursery_scope.cancel()
+
+    def __call__(self) -> None:
+        for scope in self._scopes:
+            scope.cancel()
+        if not self._running:
+            self._nursery_scope.cancel()
+
+
+async def _stop_when_parent_goes(stop: _Stop) -> None:
+    """A --processes child: its standard input is a pipe from the farm's first process, which
+    closes when that process ends, however it ends."""
+    stream = trio.lowlevel.FdStream(os.dup(sys.stdin.fileno()))
+    async with stream:
+        while await stream.receive_some(4096):
+            pass
+    stop()
 
 
 def _interrupt(signum, frame):
     raise KeyboardInterrupt
 
 
-def _plans(parser: argparse.ArgumentParser, args: argparse.Namespace) -> list[PrinterPlan]:
-    """What to serve: the farm file's printers, or --printers copies of the one the flags say."""
+def _plans(parser: argparse.ArgumentParser, args: argparse.Namespace) -> tuple[list[PrinterPlan], int]:
+    """What to serve: the farm file's printers, or --printers copies of the one the flags say;
+    and over how many processes."""
+    plans, processes = _printer_plans(parser, args)
+    processes = args.processes or processes or 1
+    if processes > len(plans):
+        parser.error(f"argument --processes: {processes} processes for {len(plans)} printer(s): "
+                     "at most one process each")
+    return plans, processes
+
+
+def _printer_plans(parser: argparse.ArgumentParser,
+                   args: argparse.Namespace) -> tuple[list[PrinterPlan], int | None]:
     if args.farm:
         given = [flag for flag, value in (
             ("--printers", args.printers != 1), ("--scenario", args.scenario),
@@ -292,9 +396,10 @@ def _plans(parser: argparse.ArgumentParser, args: argparse.Namespace) -> list[Pr
         if given:
             parser.error(f"argument --farm: {given[0]} goes in the farm file's [[printer]] tables")
         try:
-            return load_farm(args.farm)
+            farm = read_farm(args.farm, args.first_number)
         except ScenarioError as error:
             parser.error(f"argument --farm: {error}")
+        return farm.plans, farm.processes
     try:
         profile = load_profile(args.firmware)
         quirks = None
@@ -344,7 +449,10 @@ def _plans(parser: argparse.ArgumentParser, args: argparse.Namespace) -> list[Pr
         1, setup, faults, args.link, args.journal, args.sd_dir,
         tcp=args.tcp, rfc2217=args.rfc2217, eeprom_file=args.eeprom_file,
     )
-    return copies(base, args.printers)
+    # Printer N of a farm is the same printer whichever process serves it: its seed is the
+    # farm's + N - 1, as in one process of N printers.
+    first = args.first_number or 1
+    return copies(base, args.printers, first, seed_from=first - 1), None
 
 
 class _Running:
@@ -352,8 +460,10 @@ class _Running:
 
     def __init__(self, plan: PrinterPlan, capabilities: dict[str, bool], in_farm: bool,
                  cleanup: contextlib.ExitStack, flash_file: str | None = None,
-                 trace_file: str | None = None, speed: float = 1.0) -> None:
+                 trace_file: str | None = None, speed: float = 1.0,
+                 profiles: dict[str, Profile] | None = None) -> None:
         self.plan = plan
+        profiles = {} if profiles is None else profiles
         flash = FlashFile.open(flash_file) if flash_file else None
         if flash is not None:
             cleanup.callback(flash.close)
@@ -381,8 +491,12 @@ class _Running:
             sd_dir = Path(plan.sd_dir)
         else:
             sd_dir = Path(cleanup.enter_context(tempfile.TemporaryDirectory(prefix="fake-marlin-sd-")))
+        # One profile for all the printers of a firmware: parsing it is most of a start.
+        profile = profiles.get(plan.setup.firmware)
+        if profile is None:
+            profile = profiles[plan.setup.firmware] = load_profile(plan.setup.firmware)
         firmware = plan.setup.make_firmware(plan.number, plan.faults.seed, plan.uuid, plan.serial,
-                                            plan.machine_name, capabilities)
+                                            plan.machine_name, capabilities, profile)
         config = firmware.printer_config(plan.setup.extruders, sd_dir,
                                          Path(plan.eeprom_file) if plan.eeprom_file else None)
         self.server = PrinterServer(
@@ -402,13 +516,15 @@ def list_firmwares() -> int:
     return 0
 
 
-def run(parser: argparse.ArgumentParser, args: argparse.Namespace) -> int:
+def run(parser: argparse.ArgumentParser, args: argparse.Namespace,
+        argv: Sequence[str] = ()) -> int:
     """Serve the printers `args` describe until a signal; `parser` reports what is wrong in
-    them (main.py's, with the printer options)."""
+    them (main.py's, with the printer options); `argv`, the arguments, are a --processes
+    farm's children's too."""
     if args.firmware == "list":
         return list_firmwares()
     check_link_arguments(parser, args)
-    plans = _plans(parser, args)
+    plans, processes = _plans(parser, args)
     try:
         check_patterns(plans)
     except ScenarioError as error:
@@ -422,30 +538,53 @@ def run(parser: argparse.ArgumentParser, args: argparse.Namespace) -> int:
                      "number, from 1)")
     if args.control and (problem := check_control_path(args.control)):
         parser.error(f"argument --control: {problem}")
+    in_farm = len(plans) > 1
+    web = args.web
+    if args.slice is not None:  # a child of --processes: its part of the farm
+        if args.slice.stop > len(plans):
+            parser.error(f"argument --slice: the farm has {len(plans)} printers")
+        plans, web = plans[args.slice], None
+    elif problem := pty_problem(sum(1 for plan in plans if not plan.tcp and not plan.rfc2217)):
+        print(f"fake-marlin: {problem}", file=sys.stderr)
+        return 2
+    farm_parent = processes > 1 and args.slice is None
+    if not farm_parent and (problem := raise_file_limit(_files_needed(plans, args))):
+        print(f"fake-marlin: {problem}", file=sys.stderr)
+        return 2
     # Until trio takes over the signals (and in case one lands before it does), a SIGTERM or
     # SIGHUP must unwind like Ctrl-C so that the symlinks are removed.
     signal.signal(signal.SIGTERM, _interrupt)
     signal.signal(signal.SIGHUP, _interrupt)
+    if farm_parent:
+        return serve_processes(argv, plans, processes, args.control, web)
     capabilities = dict(args.capability)  # over the firmware's own
+    profiles: dict[str, Profile] = {}
     with contextlib.ExitStack() as cleanup:
         printers = []
         for plan in plans:
             try:
-                printers.append(_Running(plan, capabilities, len(plans) > 1, cleanup,
+                printers.append(_Running(plan, capabilities, in_farm, cleanup,
                                          numbered(args.flash_file, plan.number),
-                                         numbered(args.trace, plan.number), args.speed))
+                                         numbered(args.trace, plan.number), args.speed,
+                                         profiles))
             except (LinkError, FlashFileError, TraceError, EepromFileError) as error:
                 print(f"fake-marlin: {error}", file=sys.stderr)
                 return 2
             except OSError as error:
                 what = (f"journal {error.filename}" if error.filename == plan.journal
                         else f"link {plan.link}" if plan.link else "a pty")
-                print(f"fake-marlin: cannot create {what}: {error.strerror or error}",
-                      file=sys.stderr)
+                print(f"fake-marlin: cannot create {what}: "
+                      f"{explain(error) or error.strerror or error}", file=sys.stderr)
                 return 2
         try:
-            trio.run(_serve_until_signalled, printers, args.control, clock=ScaledClock(args.speed))
+            trio.run(_serve_until_signalled, printers, args.control, web, args.slice is not None,
+                     clock=ScaledClock(args.speed))
         except KeyboardInterrupt:
             pass
     return 0
 
+
+def _files_needed(plans: list[PrinterPlan], args: argparse.Namespace) -> int:
+    sockets = sum(1 for plan in plans if plan.tcp or plan.rfc2217)
+    files = sum(1 for plan in plans if plan.journal) + (len(plans) if args.trace else 0)
+    return files_needed(len(plans) - sockets, sockets, files)

@@ -14,13 +14,17 @@ Each request is one JSON object on a line, each reply one line:
         "set": as it is); the session takes them from its next line
     {"op": "printers"}                                -> [{"printer": 1, "path": ...}, ...]
 In a process serving several printers (--printers, --farm) a request names its printer by
-number, from 1: {"op": "state", "printer": 3}; with one printer the number may be left out.
+number, from 1 (or --first-number): {"op": "state", "printer": 3}; with one printer the number
+may be left out. With --processes the socket is the first process's, and it hands each request
+to the process serving that printer (control/fanout.py): the same requests, the same replies.
 A request the channel cannot carry out gets {"ok": false, "error": "..."}; the connection stays.
 """
 
+import inspect
 import json
 import os
 import stat
+from collections.abc import Sequence
 from dataclasses import asdict
 
 import trio
@@ -42,40 +46,54 @@ class ControlError(Exception):
 class Controller:
     """What the channel can do to the running PrinterServers (one, or a farm's)."""
 
-    def __init__(self, servers) -> None:
+    def __init__(self, servers, numbers: Sequence[int] | None = None) -> None:
         self.servers = list(servers) if isinstance(servers, (list, tuple)) else [servers]
+        # The printers' numbers in the farm (a process of --processes serves a part of it).
+        self.numbers = list(numbers) if numbers is not None else list(range(1, len(self.servers) + 1))
+        self._by_number = dict(zip(self.numbers, self.servers))
 
     def handle(self, request) -> object:
         if not isinstance(request, dict) or not isinstance(request.get("op"), str):
             raise ControlError('a request is a JSON object with an "op"')
-        if request["op"] == "printers":
-            return self.op_printers()
+        if request["op"] in _FARM_OPS:
+            return getattr(self, "op_" + request["op"])()
         handler = getattr(self, "op_" + request["op"], None)
         if handler is None:
-            raise ControlError(f"unknown op {request['op']!r}; one of state, set_temperature, "
-                               "set_target, inject, say, action, quirks, printers")
+            raise ControlError(unknown_op(request["op"]))
         self.server = self._addressed(request)
         return handler(request)
 
     def _addressed(self, request):
         number = request.get("printer")
-        count = len(self.servers)
-        if number is None:
-            if count == 1:
-                return self.servers[0]
-            raise ControlError(f'this process serves {count} printers: say which, '
-                               f'"printer": 1 to {count}')
-        if isinstance(number, bool) or not isinstance(number, int) or not 1 <= number <= count:
-            raise ControlError(f'"printer" must be a number from 1 to {count}, not {number!r}')
-        return self.servers[number - 1]
+        if number is None and len(self.servers) == 1:
+            return self.servers[0]
+        check_printer_number(number, self.numbers[0], self.numbers[-1])
+        server = self._by_number.get(number)
+        if server is None:
+            raise ControlError(f"no printer {number} here")
+        return server
 
     def op_printers(self) -> list:
         return [
             {"printer": number, "path": getattr(server.link, "path", None),
              "protocol": server.protocol_name, "firmware": server.firmware.profile.name,
              "boots": server.boots, **asdict(server.firmware.identity)}
-            for number, server in enumerate(self.servers, start=1)
+            for number, server in zip(self.numbers, self.servers)
         ]
+
+    def op_web_rows(self) -> list:
+        """The live view's rows of these printers (web/snapshot.py), for a --processes farm's
+        first process, which serves the view."""
+        from fake_marlin.emulator.web.snapshot import rows
+
+        return rows(self.servers, self.numbers, [_path(server) for server in self.servers])
+
+    def op_web_detail(self, request) -> dict:
+        """The live view's page of one printer."""
+        from fake_marlin.emulator.web.snapshot import detail
+
+        number = self.numbers[self.servers.index(self.server)]
+        return detail(self.server, number, _path(self.server))
 
     def op_state(self, request) -> dict:
         server, printer = self.server, self.server.printer
@@ -167,6 +185,28 @@ class Controller:
         return {}
 
 
+def _path(server) -> str:
+    """Where a host reaches the printer: its pty's path, or its socket:// URL."""
+    return str(getattr(server.link, "path", ""))
+
+
+_FARM_OPS = ("printers", "web_rows")  # of every printer: no "printer" in the request
+OPS = tuple(sorted(name[3:] for name in vars(Controller) if name.startswith("op_")))
+
+
+def unknown_op(op: str) -> str:
+    return f"unknown op {op!r}; one of {', '.join(OPS)}"
+
+
+def check_printer_number(number: object, first: int, last: int) -> None:
+    """A request's "printer", which must be one of first..last (ControlError if not)."""
+    if number is None:
+        raise ControlError(f"{last - first + 1} printers are served here: say which, "
+                           f'"printer": {first} to {last}')
+    if isinstance(number, bool) or not isinstance(number, int) or not first <= number <= last:
+        raise ControlError(f'"printer" must be a number from {first} to {last}, not {number!r}')
+
+
 def check_control_path(path: str) -> str | None:
     """Why the control socket cannot be made at `path`, or None if it can."""
     directory = os.path.dirname(os.path.abspath(path))
@@ -177,7 +217,9 @@ def check_control_path(path: str) -> str | None:
     return None
 
 
-async def serve_control(path: str, controller: Controller, task_status=trio.TASK_STATUS_IGNORED) -> None:
+async def serve_control(path: str, controller, task_status=trio.TASK_STATUS_IGNORED) -> None:
+    """Serve `controller` (a Controller, or anything whose handle(request) returns a request's
+    result or an awaitable of it, raising ControlError) on the Unix socket at `path`."""
     problem = check_control_path(path)
     if problem:
         raise ControlError(problem)
@@ -212,16 +254,19 @@ async def _serve_client(stream, controller: Controller) -> None:
             while b"\n" in buffer:
                 line, buffer = buffer.split(b"\n", 1)
                 if line.strip():
-                    await _reply(stream, _answer(line, controller))
+                    await _reply(stream, await _answer(line, controller))
 
 
-def _answer(line: bytes, controller: Controller) -> dict:
+async def _answer(line: bytes, controller) -> dict:
     try:
         request = json.loads(line)
     except ValueError as error:
         return {"ok": False, "error": f"not JSON: {error}"}
     try:
-        return {"ok": True, "result": controller.handle(request)}
+        result = controller.handle(request)
+        if inspect.isawaitable(result):
+            result = await result
+        return {"ok": True, "result": result}
     except ControlError as error:
         return {"ok": False, "error": str(error)}
 
