@@ -88,7 +88,8 @@ def test_only_takes_what_an_item_needs_and_keeps_the_install_order() -> None:
     assert len(install.BY_NAME) == len(install.ITEMS)
     assert {"octoprint", "printrun", "binproto", "cncjs", "playwright-core", "pyright",
             "avrdude", "chromium", "node", "npm", "prusalink", "libcap-dev", "libturbojpeg0",
-            "libmagic1"} == set(install.BY_NAME)
+            "libmagic1", "dockerd", "docker-compose", "debootstrap", "docker-daemon",
+            "docker-base-image", "docker-wheels"} == set(install.BY_NAME)
 
 
 def test_help_names_every_item(capsys) -> None:

@@ -1,11 +1,12 @@
-"""Debian packages that tests run (avrdude, Chromium; Node.js and npm where the machine has none),
+"""Debian packages that tests run (avrdude, Chromium; Node.js and npm where the machine has none;
+the Docker engine, Docker Compose 1 and debootstrap for the container farm, tests/hosts/docker.py),
 and the libraries a host's venv needs (PrusaLink's: libcap-dev, libturbojpeg0, libmagic1),
 installed with the machine's apt by `python -m tests.hosts.install`.
 
 The machines this project runs on are root with apt-get; a package that is missing is installed
 once, under a flock so that installs starting together do not race for dpkg's lock, and apt
-itself keeps it installed for later runs. The tests only look for the program on PATH (`find`); a library, which puts nothing on PATH,
-is looked for in dpkg's database (`find_library`).
+itself keeps it installed for later runs. The tests only look for the program on PATH (`find`);
+a library, which puts nothing on PATH, is looked for in dpkg's database (`find_library`).
 Where apt cannot be used at all (no apt-get, not root) the install says so (AptUnavailable);
 an install that apt tried and failed says what apt said (AptInstallFailed).
 """
@@ -36,6 +37,11 @@ NODE = Tool("nodejs", "node", "Node.js")
 NPM = Tool("npm", "npm", "npm")
 AVRDUDE = Tool("avrdude", "avrdude", "avrdude")
 CHROMIUM = Tool("chromium", "chromium", "Chromium")
+# The container farm's (tests/test_docker_farm.py). Debian 12 has Compose 1 (1.29) and no
+# Compose 2 plugin; debootstrap builds the offline base image (tests/hosts/docker.py).
+DOCKER = Tool("docker.io", "dockerd", "the Docker engine")
+COMPOSE = Tool("docker-compose", "docker-compose", "Docker Compose 1")
+DEBOOTSTRAP = Tool("debootstrap", "debootstrap", "debootstrap")
 
 
 @dataclass(frozen=True)

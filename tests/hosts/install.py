@@ -12,7 +12,11 @@ it once and later runs reuse it:
   (the report page's browser test), pyright (the unresolved-import check);
 - Debian packages with apt (tests/hosts/apt.py): avrdude, Chromium, and Node.js and npm where
   the machine has none; the libraries PrusaLink's venv needs, libcap-dev, libturbojpeg0 and
-  libmagic1, before it (apt needs root).
+  libmagic1, before it (apt needs root);
+- the container farm's Docker (tests/hosts/docker.py): docker.io, docker-compose and debootstrap
+  from apt, dockerd started where it is not running, the offline `python:3.11-slim` base image
+  (debootstrapped once, its tarball under ~/.cache/fake-marlin/docker) and the wheels the image
+  installs from.
 
 The tests install nothing: a test whose tool is missing skips, naming this command
 (`not_installed`). One line per item says whether it was built now or found cached, where, and
@@ -27,7 +31,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from tests.hosts import apt, npm, venvs
+from tests.hosts import apt, docker, npm, venvs
 
 COMMAND = "python -m tests.hosts.install"
 
@@ -51,6 +55,7 @@ class Item:
     find: Callable[[], Found | None]  # never installs
     install: Callable[[], Found]
     needs: tuple[str, ...] = field(default=())  # items installed first (--only takes them too)
+    done: str = "built"  # what its install did, for the line that says so
 
 
 class InstallError(RuntimeError):
@@ -114,22 +119,66 @@ def _library(library: apt.Library) -> Item:
     return Item(library.package, f"{library.label} (Debian's {library.package})", find, install)
 
 
+def _docker_daemon() -> Item:
+    def find() -> Found | None:
+        version = docker.daemon_version()
+        return None if version is None else Found(f"Docker {version}", False, None)
+
+    def install() -> Found:
+        daemon = docker.ensure_daemon()
+        where = f"Docker {daemon.version}" + (
+            f", log {docker.cache() / 'dockerd.log'}" if daemon.started_now else "")
+        return Found(where, daemon.started_now, daemon.seconds)
+
+    return Item("docker-daemon", "the Docker daemon, running", find, install,
+                needs=(apt.DOCKER.binary,), done="started")
+
+
+def _docker_base_image() -> Item:
+    def find() -> Found | None:
+        if docker.daemon_version() is None or not docker.base_image_present():
+            return None
+        cached = docker.rootfs_cached()
+        return Found(docker.BASE_IMAGE, False, None if cached is None else cached.install_seconds)
+
+    def install() -> Found:
+        image = docker.ensure_base_image()
+        return Found(image.description, image.built_now, image.seconds)
+
+    return Item("docker-base-image", f"the {docker.BASE_IMAGE} base image, made offline", find,
+                install, needs=(apt.DOCKER.binary, "docker-daemon", apt.DEBOOTSTRAP.binary))
+
+
+def _docker_wheels() -> Item:
+    def find() -> Found | None:
+        built = docker.find_wheels()
+        return None if built is None else Found(built.path, False, built.install_seconds)
+
+    def install() -> Found:
+        built = docker.ensure_wheels()
+        return Found(built.path, built.built_now, built.install_seconds)
+
+    return Item("docker-wheels", "the wheels the farm's image installs from", find, install)
+
+
 ITEMS = (
     *(_apt(tool) for tool in (apt.NODE, apt.NPM, apt.AVRDUDE, apt.CHROMIUM)),
     *(_library(library) for library in apt.LIBRARIES),
     *(_venv(host) for host in venvs.HOSTS),
     *(_npm(package) for package in npm.PACKAGES),
+    *(_apt(tool) for tool in (apt.DOCKER, apt.COMPOSE, apt.DEBOOTSTRAP)),
+    _docker_daemon(), _docker_base_image(), _docker_wheels(),
 )
 BY_NAME = {item.name: item for item in ITEMS}
 ERRORS = (venvs.VenvError, npm.NpmError, apt.AptUnavailable, apt.AptInstallFailed, InstallError,
-          OSError)
+          docker.DockerUnavailable, OSError)
 
 
 def describe(item: Item, found: Found) -> str:
     if found.seconds is None:
         state = "installed now" if found.built_now else "present"
     elif found.built_now:
-        state = f"built now in {found.seconds} s"
+        state = f"{item.done} now in {found.seconds} s"
     else:
         state = f"cached (built in {found.seconds} s)"
     return f"{item.name:<16} {state:<28} {found.path}"
