@@ -10,6 +10,7 @@ and any other bytes pass as they come.
 """
 
 import dataclasses
+import random
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from enum import Enum
@@ -114,6 +115,19 @@ class FaultStats:
     lines_corrupted: int = 0
 
 
+class _Streams(dict[Direction, random.Random]):
+    """Each direction's generator, made when it first draws: a printer without damage never
+    draws, and a farm of thousands then keeps no Mersenne Twister's 2.5 KB state per stream."""
+
+    def __init__(self, seed: int, unit: str) -> None:
+        super().__init__()
+        self._seed, self._unit = seed, unit
+
+    def __missing__(self, direction: Direction) -> random.Random:
+        made = self[direction] = stream_random(self._seed, f"{direction.value} {self._unit}")
+        return made
+
+
 class FaultLayer:
     def __init__(self, config: FaultConfig = FaultConfig()) -> None:
         self.config = config
@@ -121,8 +135,8 @@ class FaultLayer:
         # Each direction's damage draws from generators of its own, byte by byte (bits, drops)
         # and line by line (corrupt lines): the same bytes get the same damage however they are
         # cut into reads, and whatever the other direction does meanwhile.
-        self._byte_random = {d: stream_random(config.seed, f"{d.value} bytes") for d in Direction}
-        self._line_random = {d: stream_random(config.seed, f"{d.value} lines") for d in Direction}
+        self._byte_random = _Streams(config.seed, "bytes")
+        self._line_random = _Streams(config.seed, "lines")
         self.stats = {direction: FaultStats() for direction in Direction}
         self._at_line_start = {direction: True for direction in Direction}
         self._partial = {direction: b"" for direction in Direction}

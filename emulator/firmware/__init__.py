@@ -50,7 +50,7 @@ class Firmware:
         merged = dict(profile.capabilities)
         merged.update(capabilities or {})
         return cls(profile, identity, profile.quirks if quirks is None else quirks,
-                   tuple(merged.items()))
+                   _shared(tuple(merged.items())))
 
     def switch(self, quirks: Quirks) -> None:
         """These quirks from now on (the control channel): its words follow them."""
@@ -98,8 +98,8 @@ class Firmware:
     def said_capabilities(self) -> tuple[tuple[str, bool], ...]:
         """M115's capabilities: the profile's (as --capability changed them), EEPROM as the
         eeprom quirk says where the firmware has the line."""
-        return tuple((name, self.quirks.eeprom if name == "EEPROM" else enabled)
-                     for name, enabled in self.capabilities)
+        return _shared(tuple((name, self.quirks.eeprom if name == "EEPROM" else enabled)
+                             for name, enabled in self.capabilities))
 
     def line_rules(self) -> LineRules:
         """The profile's line rules, as the quirks on now change them."""
@@ -114,3 +114,12 @@ class Firmware:
         if quirks.no_m112:
             changes["emergency"] = tuple(code for code in rules.emergency if code != "M112")
         return dataclasses.replace(rules, **changes) if changes else rules  # type: ignore[arg-type]
+
+
+_SHARED: dict[tuple[tuple[str, bool], ...], tuple[tuple[str, bool], ...]] = {}
+
+
+def _shared(capabilities: tuple[tuple[str, bool], ...]) -> tuple[tuple[str, bool], ...]:
+    """One tuple for every printer whose capabilities are alike: a farm's thousands of printers
+    would otherwise each keep some 50 pairs of their own, twice."""
+    return _SHARED.setdefault(capabilities, capabilities)
