@@ -89,11 +89,11 @@ class Controller:
         return rows(self.servers, self.numbers, [_path(server) for server in self.servers])
 
     def op_web_detail(self, request) -> dict:
-        """The live view's page of one printer."""
-        from fake_marlin.emulator.web.snapshot import detail
+        """The live view's page of one printer, which watches it (records its wire) a while."""
+        from fake_marlin.emulator.web.source import watched_detail
 
         number = self.numbers[self.servers.index(self.server)]
-        return detail(self.server, number, _path(self.server))
+        return watched_detail(self.server, number, _path(self.server))
 
     def op_state(self, request) -> dict:
         server, printer = self.server, self.server.printer

@@ -1,8 +1,10 @@
 """The printer's life on a link: power on, boot, and reboot whenever a host opens the port."""
 
 import dataclasses
+from collections import deque
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
+from typing import Any
 
 import trio
 
@@ -26,11 +28,53 @@ from fake_marlin.emulator.sessions.repetier import RepetierSession
 from fake_marlin.emulator.sessions.stk500 import Stk500Session
 from fake_marlin.emulator.sessions.ultimaker import UltimakerSession
 from fake_marlin.emulator.trace.tap import PrinterSampler, TracedJournal, watch_rejects
-from fake_marlin.emulator.trace.writer import Trace
+from fake_marlin.emulator.trace.writer import Trace, reject_facts
 from fake_marlin.wire.ultimaker_variants import PLAIN, Variants
 
 SEVEN_BITS = bytes(byte & 0x7F for byte in range(256))  # what a 7-bit UART reads of a byte
 PROTOCOLS = ("auto", "marlin", "ultimaker", "repetier", "commstack", "g2core")
+# The protocol machines' one method each that refuses what the host sent (Marlin's, Repetier's,
+# Ultimaker's): wrapped per session to count refusals, so the common path pays nothing.
+REFUSALS = ("_line_error", "_request_resend", "_reject")
+# Faults of the line, not of the printer: the live view counts them, but what it shows as an
+# error is what the host then sees (a refusal), or a printer's own fault.
+LINK_FAULTS_NOT_ERRORS = frozenset(
+    {kind.value for kind in LINK_KINDS} | {"bit-errors", "drop-bytes", "corrupt-lines"})
+EVENTS_KEPT = 200  # the live view's marks: resends, faults, resets, connects (the latest)
+WIRE_CHUNKS = 1000  # reads and writes a watched printer keeps for the live view's wire tail
+SAMPLES_KEPT = 900  # the live view's samples of a watched printer (about 15 minutes' worth)
+
+
+class CountedJournal(Journal):
+    """The journal, counting what it records (the live view's commands executed): one more
+    call and an add per command, the only cost the live view puts on every printer."""
+
+    def __init__(self, journal: Journal) -> None:
+        super().__init__(None)
+        self._record = journal.record
+        self._journal = journal
+        self.count = 0
+        self.last = ""  # the last command executed
+
+    def record(self, command: str) -> None:
+        self.count += 1
+        self.last = command
+        self._record(command)
+
+    def close(self) -> None:
+        self._journal.close()
+
+
+class Watch:
+    """What the live view (emulator/web) records of a printer while someone watches its page:
+    each read and write as it crosses the wire (time, "in" or "out", bytes), appended by the
+    server, and the view's own samples of the printer (emulator/web/snapshot.py)."""
+
+    def __init__(self) -> None:
+        self.since = trio.current_time()
+        self.until = self.since  # the lease: recording stops once trio's clock passes it
+        self.wire: deque[tuple[float, str, bytes]] = deque(maxlen=WIRE_CHUNKS)
+        self.samples: deque[dict[str, Any]] = deque(maxlen=SAMPLES_KEPT)
 
 
 @dataclass(frozen=True)
@@ -84,18 +128,134 @@ class PrinterServer:
             self._sampler = PrinterSampler(trace, printer)
             self.journal = TracedJournal(journal, trace, self._sampler)
             self._deliver = self._traced_deliver
-            self.faults.on_fault = trace.fault
+        self.faults.on_fault = self._fault_fired  # called only as a fault fires
+        # What the live view reads (emulator/web/snapshot.py), kept where it costs nothing on
+        # the way to an `ok`: counted commands, and what happens rarely (refusals, faults,
+        # resets, connections) as it happens.
+        self.journal = self._counted = CountedJournal(self.journal)
+        self.connects = 0
+        self.refusals = 0  # the host's units refused (a resend or a retransmission asked)
+        self.faults_fired: dict[str, int] = {}
+        self.last_error: tuple[float, str, str] | None = None  # time, what, its kind of event
+        self.powered_on = 0.0  # trio's time when run() began
+        # (A list: a deque's first block alone would cost every printer 600 bytes.)
+        self.events: list[tuple[float, str, str]] = []  # the latest EVENTS_KEPT
+        # Recording the wire, only while the live view's page of this printer is open.
+        self.watching: Watch | None = None
+        self._unwatched_deliver = self._deliver
         # A 7-bit line (the 7bit variant): 9 bit times a character, and the printer's UART
         # keeps 7 bits of each.
         conditions = dataclasses.replace(config.conditions, data_bits=config.variants.data_bits)
         self._seven_bit = config.variants.data_bits == 7
         self._to_printer = Pipe(self._feed_session, conditions, config.faults.seed)
-        self._to_host = Pipe(self._deliver, conditions, config.faults.seed + 1)
+        self._to_host = Pipe(self._deliver_later, conditions, config.faults.seed + 1)
         self._restarts_in, self._restarts = trio.open_memory_channel[str](16)
         self._restart_pending = False  # a reset asked for that has not begun
         self._nursery: trio.Nursery | None = None
         self._session: Session | DetectingSession | None = None
         self._session_scope = trio.CancelScope()
+
+    # -- what the live view reads and switches (emulator/web) --------------------------------
+    @property
+    def commands(self) -> int:
+        """Commands executed since power-on (what the journal recorded)."""
+        return self._counted.count
+
+    @property
+    def last_command(self) -> str:
+        return self._counted.last
+
+    @property
+    def booted(self) -> bool:
+        """False while the board resets (boot_delay), before its session answers."""
+        return self._session is not None
+
+    @property
+    def host_connected(self) -> bool:
+        """Whether a host has the port. A TCP link knows (it holds the host's socket); a pty
+        cannot tell a port still open from one closed after use, so there: opened since
+        power-on, and the line up."""
+        if not getattr(self.link, "connected", True):
+            return False
+        host = getattr(self.link, "_host", self)  # TcpLink's and Rfc2217Link's
+        return self.connects > 0 if host is self else host is not None
+
+    @property
+    def speaking(self) -> str | None:
+        """The protocol spoken now: protocol_name's, g2core, or stk500 (the bootloader); None
+        while the board boots or the detector waits for the host's first bytes."""
+        session = self._active_session()
+        if isinstance(session, G2coreSession):
+            return "g2core"
+        if isinstance(session, Stk500Session):
+            return "stk500"
+        return self.protocol_name
+
+    def watch(self, seconds: float) -> Watch:
+        """Record the wire for the live view for `seconds` more of trio's time (its page asks
+        again while open). Recording starts here and stops by itself once the lease runs out;
+        while it runs, each read and write costs one deque append."""
+        now = trio.current_time()
+        watch = self.watching
+        if watch is None:
+            watch = Watch()
+            self._tasks.start_soon(self._unwatch, watch)
+            self.watching = watch
+            self._unwatched_deliver = self._deliver
+            self._deliver = self._watched_deliver
+        watch.until = max(watch.until, now + seconds)
+        return watch
+
+    async def _unwatch(self, watch: Watch) -> None:
+        try:
+            while trio.current_time() < watch.until:
+                await trio.sleep_until(watch.until)
+        finally:
+            self.watching = None
+            self._deliver = self._unwatched_deliver
+
+    def _watched_deliver(self, data: bytes) -> None:
+        self._unwatched_deliver(data)
+        if data and self.watching is not None:
+            self.watching.wire.append((trio.current_time(), "out", data))
+
+    def _deliver_later(self, data: bytes) -> None:
+        """The pipe's way to the link: whatever delivers now (plain, traced or watched)."""
+        self._deliver(data)
+
+    def _event(self, kind: str, label: str, error: bool = False) -> None:
+        now = trio.current_time()
+        if len(self.events) >= EVENTS_KEPT:
+            del self.events[0]  # rare: events are
+        self.events.append((now, kind, label))
+        if error:
+            self.last_error = (now, label, kind)
+
+    def _fault_fired(self, kind: str, direction: str | None, count: int | None = None,
+                     unit: bytes | None = None) -> None:
+        self.faults_fired[kind] = self.faults_fired.get(kind, 0) + (count or 1)
+        self._event("fault", kind if direction is None else f"{kind} {direction}",
+                    error=kind not in LINK_FAULTS_NOT_ERRORS)
+        if self.trace is not None:
+            self.trace.fault(kind, direction, count, unit)
+
+    def _count_refusals(self, session: Session) -> None:
+        protocol = getattr(session, "protocol", None)
+        for name in REFUSALS:
+            refuse = getattr(protocol, name, None)
+            if refuse is not None:
+                def counted(*args: object, refuse=refuse, **named: object) -> object:
+                    event = refuse(*args, **named)
+                    facts = reject_facts(event)
+                    self.refusals += 1
+                    if facts is not None:
+                        reason, number = facts
+                        self._event("resend", f"refused ({reason})" if number is None
+                                    else f"refused ({reason}), resend {number}", error=True)
+                    return event
+
+                setattr(protocol, name, counted)
+                return
 
     @property
     def memory(self) -> BoardMemory:
@@ -115,6 +275,7 @@ class PrinterServer:
     async def run(self, task_status=trio.TASK_STATUS_IGNORED) -> None:
         """Power on, then serve; started (for nursery.start) once the power-on greeting is out,
         so a host that opens the port as soon as it hears of it sees one boot, not two."""
+        self.powered_on = trio.current_time()
         async with trio.open_nursery() as nursery:
             self._nursery = nursery
             if self.trace is not None:
@@ -174,6 +335,7 @@ class PrinterServer:
             if self.trace is not None:
                 self.trace.reset(reason)
             self.printer.reset(now)
+            self._event("reset", reason.strip())
             if self.config.boot_delay > 0:
                 await trio.sleep(self.config.boot_delay)
             session = self._make_session(self.config.protocol, reason)
@@ -203,6 +365,7 @@ class PrinterServer:
         session = self._new_protocol_session(protocol, reason)
         if self.trace is not None:
             watch_rejects(session, self.trace)
+        self._count_refusals(session)
         return session
 
     def _new_protocol_session(self, protocol: str, reason: str) -> Session:
@@ -271,12 +434,15 @@ class PrinterServer:
         """The line is dead for `seconds`; the printer itself runs on, talking to nobody."""
         if self.trace is not None:
             self.trace.disconnect(seconds)
+        self._event("disconnect", f"the line is dead for {seconds:g} s")
         self.link.hang_up()
         self._forget_the_line()
         await trio.sleep(seconds)
         self.link.reconnect()
 
     def _feed_session(self, data: bytes) -> None:
+        if self.watching is not None and data:  # the live view's printer page is open
+            self.watching.wire.append((trio.current_time(), "in", data))
         # Bytes that arrive while the printer is still booting are lost, as on a real board.
         if self._session is not None and data:
             if self._seven_bit:
@@ -304,6 +470,8 @@ class PrinterServer:
     def _new_connection(self) -> None:
         if self.trace is not None:
             self.trace.connect()
+        self.connects += 1
+        self._event("connect", "a host opened the port")
         self.link.discard_output()
         self._forget_the_line()
         if self.config.baud_from_host:
@@ -326,8 +494,7 @@ class PrinterServer:
                 self._printer_fault(rule)
 
     def _printer_fault(self, rule: FaultRule) -> None:
-        if self.trace is not None:
-            self.trace.fault(rule.kind.value, None)
+        self._fault_fired(rule.kind.value, None)
         session = self._active_session()
         if rule.kind is FaultKind.REBOOT:
             self._request_restart(" Watchdog Reset")
@@ -391,8 +558,7 @@ class PrinterServer:
             if rule.kind not in LINK_KINDS:
                 self._printer_fault(rule)
                 continue
-            if self.trace is not None:
-                self.trace.fault(rule.kind.value, rule.direction)
+            self._fault_fired(rule.kind.value, rule.direction)
             if rule.kind is FaultKind.GARBAGE:
                 noise = self.faults.plan.garbage(index)
                 if rule.direction == "to-printer":
