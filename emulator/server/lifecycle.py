@@ -1,6 +1,7 @@
 """The printer's life on a link: power on, boot, and reboot whenever a host opens the port."""
 
 import dataclasses
+import functools
 from collections import deque
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
@@ -65,6 +66,23 @@ class CountedJournal(Journal):
         self._journal.close()
 
 
+class Seen:
+    """What the live view reads of a printer that happens rarely, noted as it happens. One
+    slotted object: more attributes on the server itself would cost every printer 1.5 KB (past
+    30 names an instance stops sharing its dictionary's keys)."""
+
+    __slots__ = ("connects", "events", "faults_fired", "last_error", "powered_on", "refusals")
+
+    def __init__(self) -> None:
+        self.connects = 0
+        self.refusals = 0  # the host's units refused (a resend or a retransmission asked)
+        self.faults_fired: dict[str, int] = {}
+        self.last_error: tuple[float, str, str] | None = None  # time, what, its kind of event
+        self.events: list[tuple[float, str, str]] = []  # the latest EVENTS_KEPT (a list: a
+        # deque's first block alone would cost every printer 600 bytes)
+        self.powered_on = 0.0  # trio's time when the server's run() began
+
+
 class Watch:
     """What the live view (emulator/web) records of a printer while someone watches its page:
     each read and write as it crosses the wire (time, "in" or "out", bytes), appended by the
@@ -75,6 +93,7 @@ class Watch:
         self.until = self.since  # the lease: recording stops once trio's clock passes it
         self.wire: deque[tuple[float, str, bytes]] = deque(maxlen=WIRE_CHUNKS)
         self.samples: deque[dict[str, Any]] = deque(maxlen=SAMPLES_KEPT)
+        self.deliver: Callable[[bytes], None] = lambda data: None  # the server's, unwatched
 
 
 @dataclass(frozen=True)
@@ -123,7 +142,7 @@ class PrinterServer:
         # they go straight on, and the trace costs nothing.
         self.trace = trace
         self._sampler: PrinterSampler | None = None
-        self._deliver = link.send
+        self._deliver: Callable[[bytes], None] = link.send
         if trace is not None:
             self._sampler = PrinterSampler(trace, printer)
             self.journal = TracedJournal(journal, trace, self._sampler)
@@ -133,16 +152,9 @@ class PrinterServer:
         # the way to an `ok`: counted commands, and what happens rarely (refusals, faults,
         # resets, connections) as it happens.
         self.journal = self._counted = CountedJournal(self.journal)
-        self.connects = 0
-        self.refusals = 0  # the host's units refused (a resend or a retransmission asked)
-        self.faults_fired: dict[str, int] = {}
-        self.last_error: tuple[float, str, str] | None = None  # time, what, its kind of event
-        self.powered_on = 0.0  # trio's time when run() began
-        # (A list: a deque's first block alone would cost every printer 600 bytes.)
-        self.events: list[tuple[float, str, str]] = []  # the latest EVENTS_KEPT
+        self.seen = Seen()
         # Recording the wire, only while the live view's page of this printer is open.
         self.watching: Watch | None = None
-        self._unwatched_deliver = self._deliver
         # A 7-bit line (the 7bit variant): 9 bit times a character, and the printer's UART
         # keeps 7 bits of each.
         conditions = dataclasses.replace(config.conditions, data_bits=config.variants.data_bits)
@@ -164,6 +176,30 @@ class PrinterServer:
     @property
     def last_command(self) -> str:
         return self._counted.last
+
+    @property
+    def connects(self) -> int:
+        return self.seen.connects
+
+    @property
+    def refusals(self) -> int:
+        return self.seen.refusals
+
+    @property
+    def faults_fired(self) -> dict[str, int]:
+        return self.seen.faults_fired
+
+    @property
+    def last_error(self) -> tuple[float, str, str] | None:
+        return self.seen.last_error
+
+    @property
+    def events(self) -> list[tuple[float, str, str]]:
+        return self.seen.events
+
+    @property
+    def powered_on(self) -> float:
+        return self.seen.powered_on
 
     @property
     def booted(self) -> bool:
@@ -201,7 +237,7 @@ class PrinterServer:
             watch = Watch()
             self._tasks.start_soon(self._unwatch, watch)
             self.watching = watch
-            self._unwatched_deliver = self._deliver
+            watch.deliver = self._deliver
             self._deliver = self._watched_deliver
         watch.until = max(watch.until, now + seconds)
         return watch
@@ -212,12 +248,14 @@ class PrinterServer:
                 await trio.sleep_until(watch.until)
         finally:
             self.watching = None
-            self._deliver = self._unwatched_deliver
+            self._deliver = watch.deliver
 
     def _watched_deliver(self, data: bytes) -> None:
-        self._unwatched_deliver(data)
-        if data and self.watching is not None:
-            self.watching.wire.append((trio.current_time(), "out", data))
+        watch = self.watching
+        if watch is not None:
+            watch.deliver(data)
+            if data:
+                watch.wire.append((trio.current_time(), "out", data))
 
     def _deliver_later(self, data: bytes) -> None:
         """The pipe's way to the link: whatever delivers now (plain, traced or watched)."""
@@ -225,15 +263,17 @@ class PrinterServer:
 
     def _event(self, kind: str, label: str, error: bool = False) -> None:
         now = trio.current_time()
-        if len(self.events) >= EVENTS_KEPT:
-            del self.events[0]  # rare: events are
-        self.events.append((now, kind, label))
+        events = self.seen.events
+        if len(events) >= EVENTS_KEPT:
+            del events[0]
+        events.append((now, kind, label))
         if error:
-            self.last_error = (now, label, kind)
+            self.seen.last_error = (now, label, kind)
 
     def _fault_fired(self, kind: str, direction: str | None, count: int | None = None,
                      unit: bytes | None = None) -> None:
-        self.faults_fired[kind] = self.faults_fired.get(kind, 0) + (count or 1)
+        fired = self.seen.faults_fired
+        fired[kind] = fired.get(kind, 0) + (count or 1)
         self._event("fault", kind if direction is None else f"{kind} {direction}",
                     error=kind not in LINK_FAULTS_NOT_ERRORS)
         if self.trace is not None:
@@ -244,18 +284,19 @@ class PrinterServer:
         for name in REFUSALS:
             refuse = getattr(protocol, name, None)
             if refuse is not None:
-                def counted(*args: object, refuse=refuse, **named: object) -> object:
-                    event = refuse(*args, **named)
-                    facts = reject_facts(event)
-                    self.refusals += 1
-                    if facts is not None:
-                        reason, number = facts
-                        self._event("resend", f"refused ({reason})" if number is None
-                                    else f"refused ({reason}), resend {number}", error=True)
-                    return event
-
-                setattr(protocol, name, counted)
+                setattr(protocol, name, functools.partial(self._refused, refuse))
                 return
+
+    def _refused(self, refuse: Callable[..., object], *args: object, **named: object) -> object:
+        """A protocol machine's refusal (REFUSALS), counted: only ever on the way to a resend."""
+        event = refuse(*args, **named)
+        self.seen.refusals += 1
+        facts = reject_facts(event)
+        if facts is not None:
+            reason, number = facts
+            self._event("resend", f"refused ({reason})" if number is None
+                        else f"refused ({reason}), resend {number}", error=True)
+        return event
 
     @property
     def memory(self) -> BoardMemory:
@@ -275,7 +316,7 @@ class PrinterServer:
     async def run(self, task_status=trio.TASK_STATUS_IGNORED) -> None:
         """Power on, then serve; started (for nursery.start) once the power-on greeting is out,
         so a host that opens the port as soon as it hears of it sees one boot, not two."""
-        self.powered_on = trio.current_time()
+        self.seen.powered_on = trio.current_time()
         async with trio.open_nursery() as nursery:
             self._nursery = nursery
             if self.trace is not None:
@@ -470,7 +511,7 @@ class PrinterServer:
     def _new_connection(self) -> None:
         if self.trace is not None:
             self.trace.connect()
-        self.connects += 1
+        self.seen.connects += 1
         self._event("connect", "a host opened the port")
         self.link.discard_output()
         self._forget_the_line()
