@@ -32,6 +32,33 @@ def _die_with_parent() -> None:  # pragma: no cover - runs in the child, before 
         ctypes.CDLL(None, use_errno=True).prctl(_PR_SET_PDEATHSIG, signal.SIGTERM)
 
 
+def _stat_fields(pid: int) -> list[str]:
+    """/proc/<pid>/stat's fields after the command's name (field 3 on: state, ppid, ...)."""
+    with open(f"/proc/{pid}/stat") as file:
+        return file.read().rsplit(")", 1)[1].split()
+
+
+def _cpu_seconds(pid: int) -> float:
+    ticks = int(_stat_fields(pid)[11]) + int(_stat_fields(pid)[12])  # utime, stime (14, 15)
+    try:
+        nanoseconds = 0
+        for task in os.listdir(f"/proc/{pid}/task"):
+            with open(f"/proc/{pid}/task/{task}/schedstat") as file:
+                nanoseconds += int(file.read().split()[0])
+        # Threads that ended took their schedstat with them, but not their ticks.
+        return max(nanoseconds / 1e9, ticks / _CLOCK_TICKS - 2 / _CLOCK_TICKS)
+    except (OSError, ValueError, IndexError):
+        return ticks / _CLOCK_TICKS
+
+
+def _rss_bytes(pid: int, name: str) -> int:
+    with open(f"/proc/{pid}/status") as file:
+        for line in file:
+            if line.startswith("VmRSS:"):
+                return int(line.split()[1]) * 1024
+    raise BenchError(f"no VmRSS for {name}")
+
+
 class Proc:
     def __init__(self, name: str, argv: Sequence[str], workdir: Path,
                  env: dict[str, str] | None = None) -> None:
@@ -65,6 +92,12 @@ class Proc:
                                  f"({len(lines) - 1} of {count} lines)")
             time.sleep(0.01 if count == 1 else 0.05)
 
+    def stderr_lines(self) -> list[str]:
+        try:
+            return self._stderr_path.read_text(errors="replace").splitlines()
+        except OSError:
+            return []
+
     def stderr_tail(self) -> str:
         try:
             lines = self._stderr_path.read_text(errors="replace").strip().splitlines()
@@ -94,39 +127,39 @@ class Proc:
         """CPU time so far, user and system. The scheduler's nanosecond account
         (/proc/<pid>/task/*/schedstat) where it exists, since the clock-tick one (/proc/<pid>/stat,
         10 ms steps) is too coarse for the bare responder, which may use 50 ms in a whole run."""
-        try:
-            tasks = os.listdir(f"/proc/{self.pid}/task")
-            nanoseconds = 0
-            for task in tasks:
-                with open(f"/proc/{self.pid}/task/{task}/schedstat") as file:
-                    nanoseconds += int(file.read().split()[0])
-            ticks = self._stat_ticks()
-            # Threads that ended took their schedstat with them, but not their ticks.
-            return max(nanoseconds / 1e9, ticks / _CLOCK_TICKS - 2 / _CLOCK_TICKS)
-        except (OSError, ValueError, IndexError):
-            return self._stat_ticks() / _CLOCK_TICKS
-
-    def _stat_ticks(self) -> int:
-        with open(f"/proc/{self.pid}/stat") as file:
-            fields = file.read().rsplit(")", 1)[1].split()
-        return int(fields[11]) + int(fields[12])  # utime, stime (fields 14 and 15)
+        return _cpu_seconds(self.pid)
 
     def rss_bytes(self) -> int:
-        with open(f"/proc/{self.pid}/status") as file:
-            for line in file:
-                if line.startswith("VmRSS:"):
-                    return int(line.split()[1]) * 1024
-        raise BenchError(f"no VmRSS for {self.name}")
+        return _rss_bytes(self.pid, self.name)
+
+    def children(self) -> list[int]:
+        """Its child processes' pids, in the order they started (a farm's --processes)."""
+        found = []
+        for entry in os.listdir("/proc"):
+            if entry.isdigit():
+                with contextlib.suppress(OSError, IndexError, ValueError):
+                    if int(_stat_fields(int(entry))[1]) == self.pid:
+                        found.append(int(entry))
+        return sorted(found)
+
+    def tree_cpu_seconds(self) -> list[float]:
+        """CPU time so far of it and of each of its children, it first."""
+        return [_cpu_seconds(pid) for pid in (self.pid, *self.children())]
+
+    def tree_rss_bytes(self) -> int:
+        """Memory of it and its children together."""
+        return sum(_rss_bytes(pid, self.name) for pid in (self.pid, *self.children()))
 
     # -- ending it ------------------------------------------------------------------------
-    def stop(self) -> None:
-        """SIGTERM (the printer's Ctrl-C), then SIGKILL if it lingers; reaps it either way."""
+    def stop(self, timeout: float = STOP_TIMEOUT) -> None:
+        """SIGTERM (the printer's Ctrl-C), then SIGKILL if it lingers `timeout` seconds; reaps
+        it either way."""
         if self.popen.returncode is not None:
             return
         with contextlib.suppress(ProcessLookupError):
             self.popen.send_signal(signal.SIGTERM)
         try:
-            self.popen.wait(STOP_TIMEOUT)
+            self.popen.wait(timeout)
         except subprocess.TimeoutExpired:
             with contextlib.suppress(ProcessLookupError):
                 self.popen.kill()
@@ -147,8 +180,8 @@ class Processes:
         self._running.append(proc)
         return proc
 
-    def stop(self, proc: Proc) -> None:
-        proc.stop()
+    def stop(self, proc: Proc, timeout: float = STOP_TIMEOUT) -> None:
+        proc.stop(timeout)
         with contextlib.suppress(ValueError):
             self._running.remove(proc)
 
