@@ -115,7 +115,8 @@ def _idle_cpu(procs: list[Proc], window: float) -> list[float]:
     time.sleep(window)
     after = [sum(proc.tree_cpu_seconds()) for proc in procs], time.monotonic()
     wall = after[1] - before[1]
-    return [(b - a) / wall * 100 for a, b in zip(before[0], after[0])]
+    # Two clocks (schedstat, ticks) may disagree by a hair: an idle farm is never below 0.
+    return [max(0.0, (b - a) / wall * 100) for a, b in zip(before[0], after[0])]
 
 
 def _one_process(bench: Bench, section: Section, sizes: Sizes) -> None:
