@@ -8,6 +8,8 @@ from fake_marlin.emulator.scenario.definition import load
 from fake_marlin.emulator.scenario.run import ScenarioResult, run_scenario
 from fake_marlin.emulator.server.lifecycle import ServerConfig
 from fake_marlin.testing import MemoryPrinter, serve_in_memory
+from tests.hosts import apt, npm
+from tests.hosts.install import not_installed
 
 
 def running_printer(
@@ -46,3 +48,17 @@ class ScenarioRuns:
 @pytest.fixture(scope="session")
 def scenario_runs(tmp_path_factory: pytest.TempPathFactory) -> ScenarioRuns:
     return ScenarioRuns(tmp_path_factory.mktemp("traces"))
+
+
+@pytest.fixture(scope="session")
+def browser() -> tuple[npm.Install, str]:
+    """Headless Chromium and playwright-core to drive it (the browser tests), or a skip saying
+    which is not installed."""
+    chromium = apt.find(apt.CHROMIUM)
+    if chromium is None:
+        pytest.skip(not_installed(apt.CHROMIUM.label))
+    install = npm.find(npm.PLAYWRIGHT)
+    if install is None:
+        pytest.skip(not_installed(npm.PLAYWRIGHT.label))
+    return install, chromium
+

@@ -19,7 +19,6 @@ import pytest
 
 from fake_marlin.emulator.report import read_trace
 from tests.hosts import apt, npm
-from tests.hosts.install import not_installed
 from tests.trace_samples import big_trace
 
 pytest.importorskip("matplotlib", reason="the report needs the `report` extra (matplotlib)")
@@ -29,17 +28,6 @@ ROOT = Path(__file__).resolve().parent.parent
 FAKE_MARLIN = Path(sys.executable).parent / "fake-marlin"
 DRIVER = Path(__file__).parent / "hosts" / "report_page_driver.js"
 DRIVER_TIMEOUT = 180
-
-
-@pytest.fixture(scope="session")
-def browser() -> tuple[npm.Install, str]:
-    chromium = apt.find(apt.CHROMIUM)
-    if chromium is None:
-        pytest.skip(not_installed(apt.CHROMIUM.label))
-    install = npm.find(npm.PLAYWRIGHT)
-    if install is None:
-        pytest.skip(not_installed(npm.PLAYWRIGHT.label))
-    return install, chromium
 
 
 def open_page(browser, page: Path, screenshot: Path, search: str) -> dict:

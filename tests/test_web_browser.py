@@ -24,7 +24,6 @@ from fake_marlin.emulator.web.app import serve_web
 from fake_marlin.emulator.web.source import LocalFarm
 from fake_marlin.host import open_printer
 from tests.hosts import apt, npm
-from tests.hosts.install import not_installed
 
 pytestmark = pytest.mark.e2e
 
@@ -32,17 +31,6 @@ DRIVER = Path(__file__).parent / "hosts" / "web_page_driver.js"
 DRIVER_TIMEOUT = 180
 PRINTERS = 200
 STREAMING = 1  # the printer our host streams to
-
-
-@pytest.fixture(scope="session")
-def browser() -> tuple[npm.Install, str]:
-    chromium = apt.find(apt.CHROMIUM)
-    if chromium is None:
-        pytest.skip(not_installed(apt.CHROMIUM.label))
-    install = npm.find(npm.PLAYWRIGHT)
-    if install is None:
-        pytest.skip(not_installed(npm.PLAYWRIGHT.label))
-    return install, chromium
 
 
 async def open_view(browser, url: str, screenshot: Path) -> dict:

@@ -35,7 +35,7 @@ import time
 from pathlib import Path
 
 from fake_marlin import __version__
-from fake_marlin.emulator.cli.parsing import Commands
+from fake_marlin.emulator.cli.parsing import Commands, whole_number
 
 PROG = "fake-marlin bench"
 # The keys of measure.SECTIONS, in their order (tests/test_cli.py checks): written out here so
@@ -55,15 +55,6 @@ def _sections(text: str) -> tuple[str, ...]:
     return tuple(name for name in SECTIONS if name in names)  # the documented order
 
 
-def _count(low: int, high: int):
-    def parse(text: str) -> int:
-        if not text.isdigit() or not low <= int(text) <= high:
-            raise argparse.ArgumentTypeError(f"must be a whole number from {low} to {high:,}, "
-                                             f"got {text!r}")
-        return int(text)
-    return parse
-
-
 def configure(commands: Commands) -> None:
     """Add `bench` to fake-marlin's commands (main.py); its errors are one line, no usage block:
     `fake-marlin bench: error: ... (see fake-marlin bench --help)`."""
@@ -78,10 +69,10 @@ def configure(commands: Commands) -> None:
                         help="small jobs, one round, smaller farms (about half a minute)")
     parser.add_argument("--only", type=_sections, metavar="SECTION[,SECTION]",
                         help="run these sections only")
-    parser.add_argument("--moves", type=_count(1, 1_000_000), metavar="N",
+    parser.add_argument("--moves", type=whole_number(1, 1_000_000), metavar="N",
                         help=f"moves in the throughput job (default {DEFAULT_MOVES:,}; "
                         f"{QUICK_MOVES} with --quick)")
-    parser.add_argument("--rounds", type=_count(1, 100), metavar="N",
+    parser.add_argument("--rounds", type=whole_number(1, 100), metavar="N",
                         help=f"side-by-side rounds per throughput pair (default {DEFAULT_ROUNDS}; "
                         f"{QUICK_ROUNDS} with --quick)")
     parser.add_argument("--json", action="store_true", help="print one JSON object instead")

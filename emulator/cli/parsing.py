@@ -16,13 +16,23 @@
 
 import argparse
 import sys
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from typing import TYPE_CHECKING, Any, NoReturn
 
 if TYPE_CHECKING:
     _SubParsers = argparse._SubParsersAction[argparse.ArgumentParser]
 else:  # not subscriptable at run time
     _SubParsers = argparse._SubParsersAction
+
+
+def whole_number(low: int, high: int) -> "Callable[[str], int]":
+    """An argparse type: a whole number from `low` to `high`, or the error saying so."""
+    def parse(text: str) -> int:
+        if not text.isdigit() or not low <= int(text) <= high:
+            raise argparse.ArgumentTypeError(f"must be a whole number from {low} to {high:,}, "
+                                             f"got {text!r}")
+        return int(text)
+    return parse
 
 
 class CommandParser(argparse.ArgumentParser):

@@ -43,6 +43,7 @@ from fake_marlin.emulator.cli.farm import (
     read_farm,
 )
 from fake_marlin.emulator.cli.limits import explain, files_needed, pty_problem, raise_file_limit
+from fake_marlin.emulator.cli.parsing import whole_number
 from fake_marlin.emulator.cli.processes import serve_processes
 from fake_marlin.emulator.scenario.definition import PrinterSetup, ScenarioError, add_fault_table
 from fake_marlin.emulator.scenario.definition import load as load_scenario
@@ -93,27 +94,6 @@ def _baud(text: str) -> int | str:
     if not text.isdigit() or int(text) <= 0:
         raise argparse.ArgumentTypeError(f"must be a positive whole number or `host`, got {text!r}")
     return int(text)
-
-
-def _extruder_count(text: str) -> int:
-    if not text.isdigit() or not 1 <= int(text) <= 8:
-        raise argparse.ArgumentTypeError(f"must be a whole number from 1 to 8, got {text!r}")
-    return int(text)
-
-
-def _printer_count(text: str) -> int:
-    if not text.isdigit() or not 1 <= int(text) <= MAX_PRINTERS:
-        raise argparse.ArgumentTypeError(f"must be a whole number from 1 to {MAX_PRINTERS}, got {text!r}")
-    return int(text)
-
-
-def _whole(low: int, high: int):
-    def parse(text: str) -> int:
-        if not text.isdigit() or not low <= int(text) <= high:
-            raise argparse.ArgumentTypeError(f"must be a whole number from {low} to {high:,}, "
-                                             f"got {text!r}")
-        return int(text)
-    return parse
 
 
 def _slice(text: str) -> slice:
@@ -178,18 +158,18 @@ def add_arguments(parser: argparse._ActionsContainer) -> None:
                         "(with --printers, a pattern with {n})")
     add_link_arguments(parser)
     parser.add_argument(
-        "--printers", type=_printer_count, default=1, metavar="N",
+        "--printers", type=whole_number(1, MAX_PRINTERS), default=1, metavar="N",
         help="serve N independent printers from this process, one pty each; their paths are "
         "printed one per line, in order (default 1)",
     )
     parser.add_argument(
-        "--processes", type=_whole(1, MAX_PROCESSES), metavar="K",
+        "--processes", type=whole_number(1, MAX_PROCESSES), metavar="K",
         help="spread the printers over K processes, on as many cores (default 1): numbers, "
         "paths, ports and seeds as if one process served them, one --control socket for all; "
         "see docs/farm.md",
     )
     parser.add_argument(
-        "--first-number", type=_whole(1, MAX_FIRST_NUMBER), metavar="N",
+        "--first-number", type=whole_number(1, MAX_FIRST_NUMBER), metavar="N",
         help="this process serves printers N, N+1, ... of a larger farm (default 1): their "
         "numbers, {n} paths, seeds and identities (UUID, serial, machine name) follow, so that "
         "no two printers of the farm share them; TCP ports still count from the port given",
@@ -205,7 +185,7 @@ def add_arguments(parser: argparse._ActionsContainer) -> None:
         "--speed", type=_positive_float, default=1.0, metavar="X",
         help="run simulated printer time X times faster than real time (default 1)",
     )
-    parser.add_argument("--extruders", type=_extruder_count, default=1, metavar="N")
+    parser.add_argument("--extruders", type=whole_number(1, 8), default=1, metavar="N")
     parser.add_argument(
         "--sd-dir", metavar="DIR",
         help="directory that backs the SD card (default: a temporary one, removed at exit; "
