@@ -132,6 +132,11 @@ class TcpLink:
         self._output_ready = trio.Event()
         self._emptied = trio.Event()
 
+    @property
+    def has_host(self) -> bool:
+        """Whether a host is connected now (the live view's "host" column)."""
+        return self._host is not None
+
     # -- what a subclass (Rfc2217Link) changes ---------------------------------------------
     def _new_host(self, sock: trio.socket.SocketType, peer: str) -> Host:
         return Host(sock, peer)

@@ -213,8 +213,8 @@ class PrinterServer:
         power-on, and the line up."""
         if not getattr(self.link, "connected", True):
             return False
-        host = getattr(self.link, "_host", self)  # TcpLink's and Rfc2217Link's
-        return self.connects > 0 if host is self else host is not None
+        has_host = getattr(self.link, "has_host", None)  # TcpLink's and Rfc2217Link's
+        return self.connects > 0 if has_host is None else bool(has_host)
 
     @property
     def speaking(self) -> str | None:
