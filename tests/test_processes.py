@@ -203,3 +203,19 @@ def test_more_open_files_than_allowed_is_refused_naming_the_limit(monkeypatch, c
     err = capsys.readouterr().err
     assert "need about 2,064 open files, but a process here may open at most 2,048" in err
     assert "--processes K" in err
+
+
+@pytest.mark.e2e
+@pytest.mark.parametrize("extra", [[], ["--printers", "4", "--processes", "2"]])
+def test_a_live_view_port_in_use_is_said_and_nothing_is_left_running(extra):
+    import socket
+
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        result = subprocess.run([str(FAKE_MARLIN), "--web", f"127.0.0.1:{port}", *extra],
+                                capture_output=True, text=True, timeout=60)
+    assert result.returncode == 2
+    assert result.stderr == (f"fake-marlin: cannot serve the live view on 127.0.0.1:{port}: "
+                             "Address already in use\n")

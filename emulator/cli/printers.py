@@ -45,6 +45,7 @@ from fake_marlin.emulator.cli.farm import (
 from fake_marlin.emulator.cli.limits import explain, files_needed, pty_problem, raise_file_limit
 from fake_marlin.emulator.cli.parsing import whole_number
 from fake_marlin.emulator.cli.processes import serve_processes
+from fake_marlin.emulator.cli.web import WebUnavailable, said
 from fake_marlin.emulator.scenario.definition import PrinterSetup, ScenarioError, add_fault_table
 from fake_marlin.emulator.scenario.definition import load as load_scenario
 from fake_marlin.emulator.server.clock import ScaledClock
@@ -293,7 +294,7 @@ async def _serve_until_signalled(printers: list["_Running"], control: str | None
                 await nursery.start(serve_control, control, Controller(servers, numbers))
             if web is not None:
                 from fake_marlin.emulator.cli.web import start_web
-                from fake_marlin.emulator.web.source import LocalFarm
+                from fake_marlin.emulator.web.source import LocalFarm  # hypercorn, when asked
 
                 paths = [printer.link.path for printer in printers]
                 await start_web(nursery, web, LocalFarm(servers, numbers, paths))
@@ -556,12 +557,16 @@ def run(parser: argparse.ArgumentParser, args: argparse.Namespace,
                 print(f"fake-marlin: cannot create {what}: "
                       f"{explain(error) or error.strerror or error}", file=sys.stderr)
                 return 2
+        code = 0
         try:
-            trio.run(_serve_until_signalled, printers, args.control, web, args.slice is not None,
-                     clock=ScaledClock(args.speed))
+            try:
+                trio.run(_serve_until_signalled, printers, args.control, web,
+                         args.slice is not None, clock=ScaledClock(args.speed))
+            except* WebUnavailable as group:
+                code = said(group)
         except KeyboardInterrupt:
             pass
-    return 0
+    return code
 
 
 def _files_needed(plans: list[PrinterPlan], args: argparse.Namespace) -> int:

@@ -26,6 +26,7 @@ import trio
 
 from fake_marlin.emulator.cli.farm import PrinterPlan
 from fake_marlin.emulator.cli.links import Address
+from fake_marlin.emulator.cli.web import WebUnavailable, said
 from fake_marlin.emulator.control.fanout import ChildChannel, FanOut
 from fake_marlin.emulator.control.server import serve_control
 
@@ -112,7 +113,10 @@ def serve_processes(argv: Sequence[str], plans: list[PrinterPlan], processes: in
         ]
         farm = _Farm(children)
         try:
-            trio.run(_serve, argv, farm, control, web)
+            try:
+                trio.run(_serve, argv, farm, control, web)
+            except* WebUnavailable as group:
+                farm.code = said(group)
         except KeyboardInterrupt:  # a signal before trio took them over
             pass
         return farm.code or 0
