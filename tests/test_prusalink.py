@@ -11,6 +11,7 @@ FAKE_MARLIN_EMULATOR (a command line) runs it against another printer program, a
 tests/test_real_hosts.py.
 """
 
+import contextlib
 import json
 import os
 import re
@@ -143,7 +144,15 @@ def test_prusalink_prints_a_job_exactly_once(fake_printer_factory, prusalink_pyt
         host.start()
         ready = host.wait_for_state(READY, CONNECT_TIMEOUT, seen)
         timings["ready"] = round(time.monotonic() - started, 1)
-        # What PrusaLink read of the printer: PRUSA Fir, PRUSA SN, M862.1 Q.
+        # What PrusaLink read of the printer: PRUSA Fir, PRUSA SN, M862.1 Q. It says IDLE as
+        # soon as the printer answers, and may fill these in a moment later (its polling).
+        def read_in() -> dict | None:
+            found = host.info()
+            return found if found and found.get("serial") and found.get("nozzle_diameter") \
+                else None
+
+        with contextlib.suppress(PrusaLinkError):
+            host.wait_for(read_in, 15, "the serial number and nozzle in /api/v1/info")
         info, version = host.info(), host.version()
         assert info is not None and version is not None, explain("no /api/v1/info or /api/version")
         profile = load_profile("prusa")
