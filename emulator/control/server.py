@@ -98,7 +98,7 @@ class Controller:
     def op_state(self, request) -> dict:
         server, printer = self.server, self.server.printer
         now = trio.current_time()
-        heaters = {f"T{n}": h for n, h in enumerate(printer.hotends)} | {"B": printer.bed}
+        heaters = failures.heaters(printer)
         x, y, z, e = printer.motion.position
         return {
             "protocol": server.protocol_name,

@@ -53,6 +53,11 @@ def heater(printer, name: str):
     return printer.bed if name.upper().startswith("B") else printer.hotends[_hotend_index(printer, name)]
 
 
+def heaters(printer) -> dict:
+    """Every heater by the name `heater` takes: T0, T1, ... and B."""
+    return {f"T{index}": hotend for index, hotend in enumerate(printer.hotends)} | {"B": printer.bed}
+
+
 # A command set's handler under this key takes a thermal error instead of kill() (RepRapFirmware:
 # a heater fault turns that heater off and the printer runs on): `handler(printer, reason, heater,
 # now)`, heater as Failure.heater names it; it returns what the firmware says.

@@ -178,30 +178,6 @@ class PrinterServer:
         return self._counted.last
 
     @property
-    def connects(self) -> int:
-        return self.seen.connects
-
-    @property
-    def refusals(self) -> int:
-        return self.seen.refusals
-
-    @property
-    def faults_fired(self) -> dict[str, int]:
-        return self.seen.faults_fired
-
-    @property
-    def last_error(self) -> tuple[float, str, str] | None:
-        return self.seen.last_error
-
-    @property
-    def events(self) -> list[tuple[float, str, str]]:
-        return self.seen.events
-
-    @property
-    def powered_on(self) -> float:
-        return self.seen.powered_on
-
-    @property
     def booted(self) -> bool:
         """False while the board resets (boot_delay), before its session answers."""
         return self._session is not None
@@ -214,7 +190,7 @@ class PrinterServer:
         if not getattr(self.link, "connected", True):
             return False
         has_host = getattr(self.link, "has_host", None)  # TcpLink's and Rfc2217Link's
-        return self.connects > 0 if has_host is None else bool(has_host)
+        return self.seen.connects > 0 if has_host is None else bool(has_host)
 
     @property
     def speaking(self) -> str | None:

@@ -11,14 +11,13 @@ from typing import Any
 
 import trio
 
+from fake_marlin.emulator.printer import failures
+from fake_marlin.emulator.report.wirelog import show_bytes
 from fake_marlin.emulator.server.lifecycle import PrinterServer, Watch
 
 TAIL_LINES = 100  # lines of the wire tail, each way
 LINE_CHARS = 240  # a longer line is cut (a binary protocol's bytes run on without a newline)
 HEATING_MARGIN = 3.0  # °C from its target: a heater further away is still heating (or cooling)
-_ESCAPES = {0x09: "\\t", 0x0D: "\\r", 0x5C: "\\\\"}
-_SHOWN = [_ESCAPES.get(code) or (chr(code) if 0x20 <= code < 0x7F else f"\\x{code:02x}")
-          for code in range(256)]
 _PLAIN = frozenset(range(0x20, 0x7F)) - {0x5C}
 
 
@@ -34,7 +33,7 @@ def row(server: PrinterServer, number: int, path: str, now: float | None = None)
     if now is None:
         now = trio.current_time()
     printer = server.printer
-    heaters = {f"T{n}": heater for n, heater in enumerate(printer.hotends)} | {"B": printer.bed}
+    heaters = failures.heaters(printer)
     temperatures = {name: {"actual": round(heater.temperature(now), 1),
                            "target": round(heater.target, 1)}
                     for name, heater in heaters.items()}
@@ -61,7 +60,8 @@ def row(server: PrinterServer, number: int, path: str, now: float | None = None)
         state = "heating"
     else:
         state = "idle"
-    last_error = server.last_error
+    seen = server.seen
+    last_error = seen.last_error
     firmware = server.firmware
     return {
         "number": number,
@@ -72,7 +72,7 @@ def row(server: PrinterServer, number: int, path: str, now: float | None = None)
         "firmware_title": firmware.profile.title,
         "uuid": firmware.identity.uuid,
         "connected": server.host_connected,
-        "connects": server.connects,
+        "connects": seen.connects,
         "boots": server.boots,
         "state": state,
         "halted": printer.halted,
@@ -83,12 +83,12 @@ def row(server: PrinterServer, number: int, path: str, now: float | None = None)
         "commands": server.commands,
         "last_command": server.last_command,
         "job": job,
-        "resends": server.refusals,
-        "faults": dict(server.faults_fired),
-        "faults_fired": sum(server.faults_fired.values()),
+        "resends": seen.refusals,
+        "faults": dict(seen.faults_fired),
+        "faults_fired": sum(seen.faults_fired.values()),
         "last_error": None if last_error is None else {
             "t": round(last_error[0], 3), "text": last_error[1], "kind": last_error[2]},
-        "powered_on": round(server.powered_on, 4),
+        "powered_on": round(seen.powered_on, 4),
         "time": round(now, 4),
     }
 
@@ -105,7 +105,7 @@ def detail(server: PrinterServer, number: int, path: str) -> dict[str, Any]:
         "identity": {"uuid": identity.uuid, "serial": identity.serial,
                      "machine_name": identity.machine_name},
         "events": [{"t": round(t, 3), "kind": kind, "text": text}
-                   for t, kind, text in server.events],
+                   for t, kind, text in server.seen.events],
         "watching": None if watch is None else {"since": round(watch.since, 3),
                                                 "until": round(watch.until, 3)},
         "tail": [] if watch is None else wire_tail(watch.wire),
@@ -117,7 +117,7 @@ def detail(server: PrinterServer, number: int, path: str) -> dict[str, Any]:
 def sample(server: PrinterServer, watch: Watch, now: float) -> dict[str, Any]:
     """What a watched printer's plots need at `now`, as one sample (the caller keeps it)."""
     printer = server.printer
-    heaters = {f"T{n}": heater for n, heater in enumerate(printer.hotends)} | {"B": printer.bed}
+    heaters = failures.heaters(printer)
     return {"t": round(now, 4), "commands": server.commands,
             "queued": printer.planner.moves(now), "size": printer.planner.max_moves,
             "heaters": {name: (round(heater.temperature(now), 2), round(heater.target, 1))
@@ -211,5 +211,5 @@ def show(data: bytes) -> str:
     if _PLAIN.issuperset(data):
         text = data.decode("ascii")
     else:
-        text = "".join(_SHOWN[byte] for byte in data)
+        text = show_bytes(data.decode("latin-1"))
     return text + " …" if cut else text
