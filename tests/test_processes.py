@@ -10,6 +10,7 @@ from pathlib import Path
 
 import pytest
 
+from fake_marlin.emulator.bench.procs import children_of
 from fake_marlin.emulator.cli import limits
 from fake_marlin.emulator.cli.farm import read_farm
 from fake_marlin.emulator.cli.main import main
@@ -20,29 +21,17 @@ from fake_marlin.host import open_printer
 FAKE_MARLIN = Path(sys.executable).parent / "fake-marlin"
 
 
-def children_of(pid: int) -> list[int]:
-    found = []
-    for entry in os.listdir("/proc"):
-        if entry.isdigit():
-            try:
-                stat = Path(f"/proc/{entry}/stat").read_text()
-            except OSError:
-                continue
-            if int(stat.rsplit(")", 1)[1].split()[1]) == pid:
-                found.append(int(entry))
-    return found
-
-
 def gone(pids: list[int], within: float) -> bool:
     deadline = time.monotonic() + within
     while time.monotonic() < deadline:
-        if not any(Path(f"/proc/{pid}").exists() and "Z" not in _state(pid) for pid in pids):
+        if all(_state(pid) == "Z" for pid in pids):
             return True
         time.sleep(0.05)
     return False
 
 
 def _state(pid: int) -> str:
+    """A process's state letter; a process that is gone reads as a zombie ("Z")."""
     try:
         return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
     except OSError:

@@ -38,8 +38,20 @@ def _stat_fields(pid: int) -> list[str]:
         return file.read().rsplit(")", 1)[1].split()
 
 
+def children_of(pid: int) -> list[int]:
+    """The pids of a process's children, lowest (in practice: the first started) first."""
+    found = []
+    for entry in os.listdir("/proc"):
+        if entry.isdigit():
+            with contextlib.suppress(OSError, IndexError, ValueError):
+                if int(_stat_fields(int(entry))[1]) == pid:
+                    found.append(int(entry))
+    return sorted(found)
+
+
 def _cpu_seconds(pid: int) -> float:
-    ticks = int(_stat_fields(pid)[11]) + int(_stat_fields(pid)[12])  # utime, stime (14, 15)
+    fields = _stat_fields(pid)
+    ticks = int(fields[11]) + int(fields[12])  # utime, stime (fields 14 and 15)
     try:
         nanoseconds = 0
         for task in os.listdir(f"/proc/{pid}/task"):
@@ -134,13 +146,7 @@ class Proc:
 
     def children(self) -> list[int]:
         """Its child processes' pids, in the order they started (a farm's --processes)."""
-        found = []
-        for entry in os.listdir("/proc"):
-            if entry.isdigit():
-                with contextlib.suppress(OSError, IndexError, ValueError):
-                    if int(_stat_fields(int(entry))[1]) == self.pid:
-                        found.append(int(entry))
-        return sorted(found)
+        return children_of(self.pid)
 
     def tree_cpu_seconds(self) -> list[float]:
         """CPU time so far of it and of each of its children, it first."""

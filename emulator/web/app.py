@@ -25,6 +25,7 @@ from hypercorn.config import Config
 from hypercorn.trio import serve
 from hypercorn.typing import Framework
 
+from fake_marlin.emulator.link.tcp import host_port
 from fake_marlin.emulator.web import pages
 from fake_marlin.emulator.web.source import FarmSource, clock_speed
 
@@ -323,15 +324,11 @@ async def _lifespan(receive: Receive, send: Send) -> None:
             return
 
 
-def _bind(host: str, port: int) -> str:
-    return f"[{host}]:{port}" if ":" in host else f"{host}:{port}"
-
-
 def config(host: str, port: int) -> Config:
     """hypercorn's settings for the view: quiet but for errors (the caller says where it is),
     and its timeouts in real seconds whatever speed trio's clock runs at."""
     settings = Config()
-    settings.bind = [_bind(host, port)]
+    settings.bind = [host_port(host, port)]
     settings.accesslog = None
     settings.loglevel = "WARNING"
     settings.include_server_header = False
@@ -351,7 +348,7 @@ async def serve_web(host: str, port: int, source: FarmSource,
         async with trio.open_nursery() as nursery:
             app = LiveView(source, nursery)
             binds = await nursery.start(partial(serve, cast(Framework, app), config(host, port)))
-            url = binds[0] if binds else f"http://{_bind(host, port)}"
+            url = binds[0] if binds else f"http://{host_port(host, port)}"
             task_status.started(url.rstrip("/") + "/")
             started = True
     except* OSError as failed:
@@ -361,6 +358,6 @@ async def serve_web(host: str, port: int, source: FarmSource,
         while isinstance(error, BaseExceptionGroup):
             error = error.exceptions[0]
         assert isinstance(error, OSError)
-        raise OSError(error.errno, f"cannot serve the live view on {_bind(host, port)}: "
+        raise OSError(error.errno, f"cannot serve the live view on {host_port(host, port)}: "
                       f"{error.strerror or error}") from None
 
