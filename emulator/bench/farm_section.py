@@ -51,10 +51,11 @@ class Sizes:
     streaming: int  # printers streaming at once
     moves: int  # each one's job
     idle_window: float  # seconds the CPU is watched
+    web_moves: int  # the job of the printer streaming with its page watched
 
 
-FULL = Sizes(4000, 10_000, 200, 300, 5.0)
-QUICK = Sizes(400, 1000, 20, 100, 2.0)
+FULL = Sizes(4000, 10_000, 200, 300, 5.0, 2000)
+QUICK = Sizes(400, 1000, 20, 100, 2.0, 500)
 
 
 def _processes() -> int:
@@ -119,65 +120,86 @@ def _idle_cpu(procs: list[Proc], window: float) -> list[float]:
     return [max(0.0, (b - a) / wall * 100) for a, b in zip(before[0], after[0])]
 
 
-def _one_process(bench: Bench, section: Section, sizes: Sizes) -> None:
-    count = sizes.one_process
-    one = _start(bench, _farm(1), 1)
+@dataclass
+class _Idle:
+    """A farm and one printer alone, started and left idle side by side."""
+
+    one: _Started
+    many: _Started
+    one_cpu: float  # % of one core
+    many_cpu: float
+    rss_one: int
+    rss_many: int  # all the farm's processes
+    workers: int  # its --processes children (0: one process)
+
+    def per_printer(self, count: int) -> float:
+        """Memory per printer past each process's interpreter and first printer (which the
+        one printer alone measures)."""
+        serving = self.workers or 1
+        processes = self.workers + 1 if self.workers else 1
+        return (self.rss_many - processes * self.rss_one) / (count - serving)
+
+    def cpu_row(self, count: int) -> Row:
+        return Row(f"{count:,} printers idle: CPU", f"{self.many_cpu:.2f} % of one core",
+                   f"{self.one_cpu:.2f} % (1 printer)", None, f"< {IDLE_CPU_GOAL:.0f} %",
+                   self.many_cpu < IDLE_CPU_GOAL,
+                   {"cpu_percent": self.many_cpu, "one_cpu_percent": self.one_cpu})
+
+
+def _idle(bench: Bench, sizes: Sizes, count: int, one_extra: tuple[str, ...],
+          many_extra: tuple[str, ...]) -> _Idle:
+    one = _start(bench, _farm(1, *one_extra), 1)
     try:
-        many = _start(bench, _farm(count), count)
+        many = _start(bench, _farm(count, *many_extra), count)
         try:
             one_cpu, many_cpu = _idle_cpu([one.proc, many.proc], sizes.idle_window)
-            rss_one, rss_many = one.proc.rss_bytes(), many.proc.rss_bytes()
+            return _Idle(one, many, one_cpu, many_cpu, one.proc.rss_bytes(),
+                         many.proc.tree_rss_bytes(), len(many.proc.children()))
         finally:
             bench.procs.stop(many.proc, STOP_TIMEOUT)
     finally:
         bench.procs.stop(one.proc)
-    per_printer = (rss_many - rss_one) / (count - 1)
+
+
+def _one_process(bench: Bench, section: Section, sizes: Sizes) -> None:
+    count = sizes.one_process
+    idle = _idle(bench, sizes, count, (), ())
+    per_printer = idle.per_printer(count)
     full = sizes == FULL  # the goals are for the full farm: a small one is mostly start-up
     section.rows += [
-        Row(f"{count:,} printers, one process, ptys: up", f"{many.up:.2f} s",
-            f"{one.up:.2f} s (1 printer)", None,
+        Row(f"{count:,} printers, one process, ptys: up", f"{idle.many.up:.2f} s",
+            f"{idle.one.up:.2f} s (1 printer)", None,
             f"≤ {ONE_PROCESS_UP_GOAL:.1f} s" if full else "— (--quick)",
-            many.up <= ONE_PROCESS_UP_GOAL if full else None,
-            {"seconds": many.up, "one_seconds": one.up}),
-        Row(f"{count:,} printers idle: CPU", f"{many_cpu:.2f} % of one core",
-            f"{one_cpu:.2f} % (1 printer)", None, f"< {IDLE_CPU_GOAL:.0f} %",
-            many_cpu < IDLE_CPU_GOAL, {"cpu_percent": many_cpu, "one_cpu_percent": one_cpu}),
+            idle.many.up <= ONE_PROCESS_UP_GOAL if full else None,
+            {"seconds": idle.many.up, "one_seconds": idle.one.up}),
+        idle.cpu_row(count),
         Row("memory per printer after the first", f"{per_printer / 1024:.0f} KB",
-            f"{rss_one / 2**20:.1f} MB (RSS, 1 printer)", None,
+            f"{idle.rss_one / 2**20:.1f} MB (RSS, 1 printer)", None,
             f"≤ {MEMORY_GOAL // 1024} KB" if full else "— (--quick)",
             per_printer <= MEMORY_GOAL if full else None,
-            {"bytes_per_printer": per_printer, "rss_one": rss_one, "rss_many": rss_many}),
+            {"bytes_per_printer": per_printer, "rss_one": idle.rss_one,
+             "rss_many": idle.rss_many}),
     ]
 
 
 def _many(bench: Bench, section: Section, sizes: Sizes, processes: int) -> None:
     count = sizes.many
-    one = _start(bench, _farm(1, "--tcp", "0"), 1)
-    try:
-        many = _start(bench, _farm(count, "--processes", str(processes), "--tcp",
-                                   f"127.0.0.1:{TCP_PORT}"), count)
-        try:
-            one_cpu, many_cpu = _idle_cpu([one.proc, many.proc], sizes.idle_window)
-            rss_one, rss_many = one.proc.rss_bytes(), many.proc.tree_rss_bytes()
-            workers = len(many.proc.children())
-        finally:
-            bench.procs.stop(many.proc, STOP_TIMEOUT)
-    finally:
-        bench.procs.stop(one.proc)
-    # Each process has an interpreter of its own: what a printer costs is past those.
-    per_printer = (rss_many - (workers + 1) * rss_one) / (count - workers)
+    idle = _idle(bench, sizes, count, ("--tcp", "0"),
+                 ("--processes", str(processes), "--tcp", f"127.0.0.1:{TCP_PORT}"))
+    per_printer, workers = idle.per_printer(count), idle.workers
+    full = sizes == FULL
     section.rows += [
-        Row(f"{count:,} printers, {workers} processes, TCP: up", f"{many.up:.2f} s",
-            f"{one.up:.2f} s (1 printer)", None, "every printer up", len(many.ports) == count,
-            {"seconds": many.up, "one_seconds": one.up, "processes": workers}),
-        Row(f"{count:,} printers idle: CPU", f"{many_cpu:.2f} % of one core",
-            f"{one_cpu:.2f} % (1 printer)", None, f"< {IDLE_CPU_GOAL:.0f} %",
-            many_cpu < IDLE_CPU_GOAL, {"cpu_percent": many_cpu, "one_cpu_percent": one_cpu}),
+        Row(f"{count:,} printers, {workers} processes, TCP: up", f"{idle.many.up:.2f} s",
+            f"{idle.one.up:.2f} s (1 printer)", None, "every printer up",
+            len(idle.many.ports) == count,
+            {"seconds": idle.many.up, "one_seconds": idle.one.up, "processes": workers}),
+        idle.cpu_row(count),
         Row(f"{count:,} printers: memory per printer", f"{per_printer / 1024:.0f} KB",
-            f"{rss_many / 2**20:,.0f} MB in all ({workers + 1} processes)", None,
-            f"≤ {MEMORY_GOAL // 1024} KB" if sizes == FULL else "— (--quick)",
-            per_printer <= MEMORY_GOAL if sizes == FULL else None,
-            {"bytes_per_printer": per_printer, "rss_one": rss_one, "rss_many": rss_many}),
+            f"{idle.rss_many / 2**20:,.0f} MB in all ({workers + 1} processes)", None,
+            f"≤ {MEMORY_GOAL // 1024} KB" if full else "— (--quick)",
+            per_printer <= MEMORY_GOAL if full else None,
+            {"bytes_per_printer": per_printer, "rss_one": idle.rss_one,
+             "rss_many": idle.rss_many}),
     ]
 
 
@@ -299,7 +321,7 @@ class _Reader(threading.Thread):
 
 
 def _web(bench: Bench, section: Section, sizes: Sizes) -> None:
-    count = FULL.streaming if not bench.options.quick else QUICK.streaming
+    count = sizes.streaming
     without = _start(bench, _farm(count), count)
     try:
         with_web = _start(bench, _farm(count, "--web", "127.0.0.1:0"), count)
@@ -315,13 +337,13 @@ def _web(bench: Bench, section: Section, sizes: Sizes) -> None:
         f"{plain_cpu:.2f} % (without --web)", None, f"< {WEB_IDLE_GOAL} % more",
         web_cpu - plain_cpu < WEB_IDLE_GOAL, {"cpu_percent": web_cpu, "without": plain_cpu}))
 
-    job = jobs.short_moves(max(sizes.moves, 2000 if not bench.options.quick else 500))
+    job = jobs.short_moves(sizes.web_moves)
     path = write_job(bench.workdir, f"web-{len(job)}", job)
     host = our_host("marlin")
     plain, watched = [], []
     for _ in range(bench.options.rounds):  # side by side, in turns
-        plain.append(_stream_one(bench, host, job, path, web=False))
-        watched.append(_stream_one(bench, host, job, path, web=True))
+        plain.append(_stream_one(bench, count, host, job, path, web=False))
+        watched.append(_stream_one(bench, count, host, job, path, web=True))
     best_plain = max((run.rate for run in plain if run.rate), default=None)
     best_watched = max((run.rate for run in watched if run.rate), default=None)
     ratio = _ratio(best_watched, best_plain)
@@ -337,8 +359,8 @@ def _web(bench: Bench, section: Section, sizes: Sizes) -> None:
         f"{bench.options.rounds} turn(s) each")
 
 
-def _stream_one(bench: Bench, host: Host, job: list[str], path: Path, web: bool) -> Run:
-    count = FULL.streaming if not bench.options.quick else QUICK.streaming
+def _stream_one(bench: Bench, count: int, host: Host, job: list[str], path: Path,
+                web: bool) -> Run:
     extra = ["--web", "127.0.0.1:0"] if web else []
     farm = _start(bench, _farm(count, "--speed", SPEED, *extra), count)
     readers: list[_Reader] = []
