@@ -208,3 +208,22 @@ def test_a_live_view_port_in_use_is_said_and_nothing_is_left_running(extra):
     assert result.returncode == 2
     assert result.stderr == (f"fake-marlin: cannot serve the live view on 127.0.0.1:{port}: "
                              "Address already in use\n")
+
+
+@pytest.mark.e2e
+def test_the_live_view_of_a_farm_over_processes_shows_every_printer(fake_printer_factory):
+    import json
+    import re
+    import urllib.request
+
+    farm = fake_printer_factory(printers=4, processes=2, protocol="marlin",
+                                extra_args=["--web", "127.0.0.1:0"])
+    url = re.search(r"live view at (http://\S+)", farm.stderr)
+    assert url, farm.stderr
+    with urllib.request.urlopen(url[1] + "api/farm", timeout=10) as response:
+        rows = json.load(response)["rows"]
+    assert [row["number"] for row in rows] == [1, 2, 3, 4]
+    assert [row["path"] for row in rows] == farm.ports
+    with urllib.request.urlopen(url[1] + "api/printer/3", timeout=10) as response:
+        detail = json.load(response)  # from the second process, over its control channel
+    assert detail["row"]["number"] == 3 and detail["watching"] is not None

@@ -11,7 +11,7 @@ from dataclasses import dataclass
 import trio
 
 from fake_marlin.emulator.control.server import (
-    MAX_REQUEST, OPS, ControlError, check_printer_number, unknown_op,
+    MAX_REQUEST, OPS, ControlError, check_printer_number, check_request, unknown_op,
 )
 
 
@@ -76,22 +76,26 @@ class FanOut:
         return self.channels[-1].numbers[-1]
 
     async def handle(self, request: object) -> object:
-        if not isinstance(request, dict) or not isinstance(request.get("op"), str):
-            raise ControlError('a request is a JSON object with an "op"')
+        check_request(request)
+        assert isinstance(request, dict)
         op = request["op"]
         if op not in OPS:
             raise ControlError(unknown_op(op))
         if op == "printers":
-            found: list[object] = []
-            for channel in self.channels:
-                part = await channel.ask(request)
-                assert isinstance(part, list)
-                found += part
-            return found
+            return await self.gather(request)
         number = request.get("printer")
         check_printer_number(number, self.first, self.last)
         assert isinstance(number, int)
         return await self.channel(number).ask(request)
+
+    async def gather(self, request: dict) -> list:
+        """A request of every printer (its answer a list): each process's answer, in order."""
+        found: list = []
+        for channel in self.channels:
+            part = await channel.ask(request)
+            assert isinstance(part, list)
+            found += part
+        return found
 
     def channel(self, number: int) -> ChildChannel:
         for channel in self.channels:
@@ -115,12 +119,7 @@ class RemoteFarm:
     fanout: FanOut
 
     async def rows(self) -> list[dict]:
-        found: list[dict] = []
-        for channel in self.fanout.channels:
-            part = await channel.ask({"op": "web_rows"})
-            assert isinstance(part, list)
-            found += part
-        return found
+        return await self.fanout.gather({"op": "web_rows"})
 
     async def detail(self, number: int) -> dict | None:
         if not self.fanout.first <= number <= self.fanout.last:

@@ -53,8 +53,7 @@ class Controller:
         self._by_number = dict(zip(self.numbers, self.servers))
 
     def handle(self, request) -> object:
-        if not isinstance(request, dict) or not isinstance(request.get("op"), str):
-            raise ControlError('a request is a JSON object with an "op"')
+        check_request(request)
         if request["op"] in _FARM_OPS:
             return getattr(self, "op_" + request["op"])()
         handler = getattr(self, "op_" + request["op"], None)
@@ -192,6 +191,12 @@ def _path(server) -> str:
 
 _FARM_OPS = ("printers", "web_rows")  # of every printer: no "printer" in the request
 OPS = tuple(sorted(name[3:] for name in vars(Controller) if name.startswith("op_")))
+
+
+def check_request(request: object) -> None:
+    """A request is a JSON object with an "op" (ControlError if not)."""
+    if not isinstance(request, dict) or not isinstance(request.get("op"), str):
+        raise ControlError('a request is a JSON object with an "op"')
 
 
 def unknown_op(op: str) -> str:
